@@ -1,0 +1,192 @@
+"""Validated session configuration: the scenario a loop runs.
+
+These pydantic models are the single description of a session. They are read from a TOML
+scenario by ``ergoseek simulate``, sent by the REST API when a trainer starts a session, pickled
+to the worker process and stored as JSON with the session. Every field has a unit and a
+default; unknown keys are rejected so a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class StrictModel(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class MachineConfig(StrictModel):
+    """The machine (1) and its hard limits."""
+
+    inertia: Positive = Field(0.1, description="J, kg·m² (the paper's testbed: 0.1)")
+    max_torque: Positive = Field(20.0, description="|u| limit, N·m")
+    max_velocity: Positive = Field(15.0, description="w limit, rad/s")
+    passivity_c2: Positive = Field(
+        50.0, description="c² of (5): the session stops if W(t) < -c², J"
+    )
+
+
+class UserConfig(StrictModel):
+    """A simulated person: torque-velocity law plus real-world traits."""
+
+    kind: Literal["hill", "linear"] = "hill"
+    tau0: Positive = Field(3.0, description="isometric torque, N·m")
+    wmax: Positive = Field(10.0, description="velocity at which torque reaches zero, rad/s")
+    curvature: Positive = Field(0.25, description="Hill's a/F0 (hill only)")
+    noise: NonNegative = Field(0.0, le=0.5, description="relative std of the torque fluctuation")
+    noise_bandwidth: Positive = Field(5.0, le=200.0, description="noise corner frequency, Hz")
+    ripple: NonNegative = Field(0.0, lt=1.0, description="stroke-angle ripple r: τ·(1 + r sin q)")
+    fatigue_tau: NonNegative = Field(0.0, description="τ0(t) = τ0·exp(-t/fatigue_tau), s; 0 = none")
+    fatigue_model: Literal["exponential", "three-compartment"] = Field(
+        "exponential", description="three-compartment: Xia & Frey Law (2008), ignores fatigue_tau"
+    )
+    fatigue_effort: Positive = Field(
+        0.5, le=1.0, description="three-compartment target load, fraction of capacity"
+    )
+    fatigue_f: Positive = Field(0.01, description="three-compartment fatigue rate F, 1/s")
+    fatigue_r: Positive = Field(0.002, description="three-compartment recovery rate R, 1/s")
+
+
+class ControllerConfig(StrictModel):
+    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise")."""
+
+    kind: Literal["rise", "measured"] = "rise"
+    ks: Positive = Field(4.0, description="RISE gain ks (23)")
+    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s")
+    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s")
+    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad")
+
+
+class FilterConfig(StrictModel):
+    """Trajectory filter: p^n / (s + p)^n, n = 4 is (32) with p = 3, n = 3 is (33)."""
+
+    order: Literal[3, 4] = 4
+    pole: Positive = Field(3.0, le=200.0, description="repeated real pole p, rad/s")
+
+
+class SeekerConfig(StrictModel):
+    """Desired-trajectory generator: which extremum seeker and its parameters."""
+
+    kind: Literal["parabolic", "brent", "perturbation", "fixed"] = "brent"
+    bracket: tuple[Positive, Positive, Positive] = Field(
+        (1.0, 3.5, 6.0), description="γ1 < γ2 < γ3: lower bound, best guess, upper bound, rad/s"
+    )
+    rho: Positive = Field(1.0, le=5.0, description="ρ of the modified power p = τ·w^ρ (4)")
+    objective: Literal["power", "surrogate"] = Field(
+        "power", description="power: τ (or τ̂)·wd^ρ; surrogate: eq. (31), the paper's Exp. 1"
+    )
+    filter: FilterConfig = FilterConfig()
+    start_delay: NonNegative = Field(1.5, description="no measurement before this time, s")
+    e1: Positive = Field(0.1, description="ē1: measure only when |e| ≤ ē1, rad/s")
+    e2: Positive = Field(0.05, description="ē2: measure only when |wd - γ| ≤ ē2, rad/s")
+    window: Positive = Field(0.5, description="shortest averaging window per candidate, s")
+    max_window: Positive = Field(6.0, description="longest averaging window per candidate, s")
+    quiet: Positive = Field(
+        0.01, description="relative std of p under which the shortest window is enough"
+    )
+    threshold: Positive = Field(0.1, description="stop when the bracket is narrower, rad/s")
+    min_step: Positive = Field(0.05, description="no two candidates closer than this, rad/s")
+    step: Positive | None = Field(
+        None, description="brent: first probe's distance from γ2 (default: a tenth of the bracket)"
+    )
+    noise_k: NonNegative = Field(
+        2.0, description="brent: points whose power differs by < k·σ are not told apart"
+    )
+    max_evaluations: int = Field(30, ge=3, le=1000)
+    # perturbation, eq. (14)
+    amplitude: Positive = Field(0.2, description="ae: dither amplitude, rad/s")
+    omega: Positive = Field(1.5, description="ω: dither frequency, rad/s")
+    alpha0: Positive = Field(0.5, description="α0: gradient filter rate, 1/s")
+    alpha_f: NonNegative = Field(0.0, description="αf: leak on θ, 1/s (0 = Krstić & Deng)")
+    kf1: Positive = Field(8.0, description="kf1: adaptation gain")
+    kf2: Positive = Field(0.5, description="kf2: power high-pass rate, 1/s")
+    saturation: Positive = Field(100.0, description="sat(p) = P·tanh(p/P), W")
+    # fixed
+    setpoint: Positive | None = Field(None, description="fixed: velocity to hold (default γ2)")
+
+    @field_validator("bracket")
+    @classmethod
+    def _increasing(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not v[0] < v[1] < v[2]:
+            raise ValueError(f"must satisfy γ1 < γ2 < γ3, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _windows(self) -> SeekerConfig:
+        if self.max_window < self.window:
+            raise ValueError("max_window must be at least window")
+        return self
+
+
+class SessionConfig(StrictModel):
+    """One whole session: how long, how fast, on what machine, for whom, with what."""
+
+    duration: Positive = Field(120.0, le=24 * 3600, description="s")
+    rate: Positive = Field(1000.0, ge=50.0, le=20000.0, description="loop rate, Hz")
+    seed: int = Field(1, ge=0, description="seeds every random process of the simulated user")
+    machine: MachineConfig = MachineConfig()
+    user: UserConfig = UserConfig()
+    controller: ControllerConfig = ControllerConfig()
+    seeker: SeekerConfig = SeekerConfig()
+
+    @model_validator(mode="after")
+    def _within_machine(self) -> SessionConfig:
+        top = self.seeker.bracket[2]
+        if top >= self.machine.max_velocity:
+            raise ValueError(
+                f"seeker.bracket: γ3 = {top} must be below machine.max_velocity "
+                f"= {self.machine.max_velocity}"
+            )
+        if self.seeker.setpoint is not None and self.seeker.setpoint >= self.machine.max_velocity:
+            raise ValueError("seeker.setpoint must be below machine.max_velocity")
+        return self
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.rate
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be used, with a one-line reason naming the key."""
+
+
+def describe_validation_error(exc: ValidationError) -> str:
+    """One line per problem: ``key.path: reason``."""
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(x) for x in err["loc"]) or "scenario"
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif err["type"] != "value_error" and "input" in err and not isinstance(err["input"], dict):
+            msg = f"{msg} (got {err['input']!r})"
+        parts.append(f"{loc}: {msg}")
+    return "; ".join(parts)
+
+
+def parse_session_config(data: dict[str, Any]) -> SessionConfig:
+    try:
+        return SessionConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(describe_validation_error(exc)) from None
+
+
+def load_scenario(path: str | Path) -> SessionConfig:
+    """Read and validate a TOML scenario; raise ScenarioError with a one-line reason."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ScenarioError(f"{p}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{p}: not valid TOML ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{p}: cannot read ({exc})") from None
+    return parse_session_config(data)

@@ -1,0 +1,42 @@
+"""Hard limits enforced inside every loop step, whatever controller computed u.
+
+- |u| ≤ max_torque: the command is clamped.
+- |w| ≤ max_velocity: above it a governor overrides the command with braking torque that
+  grows with the overspeed (full torque at 0.5 rad/s over), as a drive's velocity limiter does.
+Each step reports which limit acted, as bit flags, so the worker can raise events and stop.
+"""
+
+from __future__ import annotations
+
+TORQUE_LIMIT = 1
+VELOCITY_LIMIT = 2
+GOVERNOR_SPAN = 0.5  # rad/s of overspeed for full braking torque
+
+
+class Limits:
+    __slots__ = ("max_torque", "max_velocity", "gain", "flags")
+
+    def __init__(self, max_torque: float, max_velocity: float) -> None:
+        self.max_torque = max_torque
+        self.max_velocity = max_velocity
+        self.gain = max_torque / GOVERNOR_SPAN
+        self.flags = 0
+
+    def apply(self, u: float, w: float) -> float:
+        flags = 0
+        vmax = self.max_velocity
+        if w > vmax:
+            u = min(u, -self.gain * (w - vmax))
+            flags |= VELOCITY_LIMIT
+        elif w < -vmax:
+            u = max(u, self.gain * (-vmax - w))
+            flags |= VELOCITY_LIMIT
+        umax = self.max_torque
+        if u > umax:
+            u = umax
+            flags |= TORQUE_LIMIT
+        elif u < -umax:
+            u = -umax
+            flags |= TORQUE_LIMIT
+        self.flags = flags
+        return u

@@ -1,0 +1,90 @@
+"""The control loop: one ``step()`` per period, shared by simulation and the real-time worker.
+
+Per period (ros2_control's read → update → write, the read and write being the caller's):
+    e = w - wd (3); u = controller (7) or (23); limits; τ or τ̂ (28); p (4) or (31);
+    W += τ w dt (5); the seeker is told p and advances the reference to the next period.
+The loop knows nothing of clocks, processes or the web: time is the step count × dt.
+Each step leaves its telemetry row in ``row`` (channels of :mod:`sessions.telemetry`), plain
+floats for whoever records them (simulation arrays, the worker's shared-memory ring).
+"""
+
+from __future__ import annotations
+
+import math
+
+from sessions.config import SessionConfig
+from sessions.controllers import make_controller
+from sessions.limits import Limits
+from sessions.objective import modified_power, surrogate_power
+from sessions.passivity import PassivityMonitor
+from sessions.seekers import Evaluation, make_seeker
+from sessions.telemetry import INDEX, WIDTH
+
+
+class Loop:
+    __slots__ = (
+        "cfg", "dt", "k", "controller", "seeker", "limits", "passivity", "rho", "surrogate",
+        "row", "flags", "evaluation", "peak_power", "power_sum",
+    )  # fmt: skip
+
+    def __init__(self, cfg: SessionConfig, *, as_printed: bool = False) -> None:
+        m = cfg.machine
+        self.cfg = cfg
+        self.dt = cfg.dt
+        self.k = 0
+        self.controller = make_controller(cfg.controller, m.inertia)
+        self.seeker = make_seeker(cfg.seeker, self.dt, m.max_velocity, as_printed=as_printed)
+        self.limits = Limits(m.max_torque, m.max_velocity)
+        self.passivity = PassivityMonitor(m.passivity_c2)
+        self.rho = cfg.seeker.rho
+        self.surrogate = cfg.seeker.objective == "surrogate"
+        self.row: tuple[float, ...] = (0.0,) * WIDTH
+        self.flags = 0
+        self.evaluation: Evaluation | None = None
+        self.peak_power = 0.0
+        self.power_sum = 0.0
+
+    def begin(self, q0: float, w0: float) -> None:
+        """Start at the machine's current state: the reference starts at w0, u(t0) = 0 for RISE."""
+        seeker = self.seeker
+        seeker.begin(w0)
+        self.controller.begin(w0 - seeker.wd, seeker.ad)
+        self.row = (0.0, q0, w0, seeker.wd, seeker.ad, 0.0, 0.0, 0.0, 0.0, seeker.target)
+
+    def step(self, q: float, w: float, tau_measured: float = math.nan) -> float:
+        """One period: the measured state in, the motor torque to apply out."""
+        dt = self.dt
+        t = self.k * dt
+        seeker = self.seeker
+        wd = seeker.wd
+        ad = seeker.ad
+        e = w - wd  # (3)
+        ctrl = self.controller
+        u_cmd = ctrl.command(e, ad, tau_measured)
+        limits = self.limits
+        u = limits.apply(u_cmd, w)
+        tau = ctrl.commit(e, ad, tau_measured, u, u_cmd, dt)
+        p = surrogate_power(wd) if self.surrogate else modified_power(tau, wd, self.rho)
+        work = self.passivity.add(tau, w, dt)
+        pm = tau * w
+        self.power_sum += pm
+        if pm > self.peak_power:
+            self.peak_power = pm
+        self.evaluation = seeker.tell(t, q, p, e)
+        self.row = (t, q, w, wd, ad, u, tau, p, work, seeker.target)
+        self.flags = limits.flags
+        self.k += 1
+        return u
+
+    def value(self, channel: str) -> float:
+        """The last step's value of one telemetry channel."""
+        return self.row[INDEX[channel]]
+
+    @property
+    def elapsed(self) -> float:
+        return self.k * self.dt
+
+    @property
+    def mean_power(self) -> float:
+        """Mean mechanical power τ·w (τ̂·w under RISE) so far, W."""
+        return self.power_sum / self.k if self.k else 0.0

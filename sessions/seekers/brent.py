@@ -1,0 +1,148 @@
+"""A safeguarded Brent maximiser, run online one measurement at a time.
+
+Two phases, the pairing Numerical Recipes recommends (mnbrak, then brent), kept inside the
+hard bounds [γ1, γ3]:
+
+1. **Bracketing from the best guess.** Measure γ2, then γ2 ± h (h = ``step``, default 5 % of
+   the bracket; first towards the wider side, towards the slower speed on a tie: a person is
+   safer probed slower), then step on in the uphill direction, the stride growing by the
+   golden ratio while the power keeps rising, until a point is worse than the best by more
+   than the standard error of the difference (noise alone never closes a bracket) or a bound
+   is reached. Every probe stays near the last good one: a person spends the search close to
+   their best power.
+2. **Brent's localmin** (Algorithms for Minimization without Derivatives, 1973, ch. 5) on -p
+   inside that bracket: parabolic interpolation through the three best points when the step is
+   acceptable, a golden-section step otherwise, never a step shorter than tol1 (so no point is
+   measured twice) and never a point outside the bracket.
+
+Noise-aware stop: tol1 = max(min_step, δn) with δn = sqrt(k·σ/|c|), σ the standard error of
+the measurements and c the curvature of p near the best point (from the parabola through the
+three best points, trusted only when it stands out of the noise by two standard errors).
+Two candidates closer than δn differ in true power by less than k·σ, so they cannot be told
+apart by measurement: the search stops instead of chasing noise. The final
+setpoint is the vertex of that parabola when it is a maximum inside the final bracket, else the
+best point measured.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sessions.seekers.base import Evaluation, FilteredSeeker, Plan
+from sessions.seekers.fit import final_estimate, rms_stderr
+from sessions.seekers.parabolic import curvature
+
+GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))  # 0.381966…, the golden-section fraction
+PHI = 0.5 * (1.0 + math.sqrt(5.0))  # 1.618…, the bracketing growth
+
+
+class BrentSeeker(FilteredSeeker):
+    kind = "brent"
+    __slots__ = ("noise_tol",)
+
+    def _tol(self, pts: list[tuple[float, float]]) -> float:
+        """tol1: the minimum step, widened to the noise resolution near the best point."""
+        cfg = self.cfg
+        if cfg.noise_k > 0.0 and len({g for g, _ in pts}) == 3:
+            (g1, p1), (g2, p2), (g3, p3) = sorted(pts)
+            c = curvature(g1, p1, g2, p2, g3, p3)
+            # c is linear in the p's: c = Σ wᵢ pᵢ, so its standard error is σ·sqrt(Σ wᵢ²).
+            # A curvature lost in the noise says nothing about δn: keep the last estimate.
+            w1 = 1.0 / ((g2 - g1) * (g3 - g1))
+            w3 = 1.0 / ((g3 - g2) * (g3 - g1))
+            sigma = rms_stderr(self.evaluations)
+            c_err = sigma * math.sqrt(w1 * w1 + (w1 + w3) ** 2 + w3 * w3)
+            if c < -2.0 * c_err:
+                self.noise_tol = math.sqrt(cfg.noise_k * sigma / -c)
+        return max(cfg.min_step, self.noise_tol)
+
+    def _final(self, best: float) -> float:
+        return final_estimate(self.evaluations, self.cfg.bracket[0], self.cfg.bracket[2], best)
+
+    def plan(self) -> Plan:
+        cfg = self.cfg
+        lo, guess, hi = cfg.bracket
+        budget = cfg.max_evaluations
+        self.noise_tol = 0.0
+        h = cfg.step if cfg.step is not None else 0.05 * (hi - lo)
+
+        def clamp(g: float) -> float:
+            return min(max(g, lo), hi)
+
+        # -- 1. bracketing from the best guess ---------------------------------------------
+        start: Evaluation = yield guess
+        down = (guess - lo) >= (hi - guess)
+        probe: Evaluation = yield clamp(guess - h if down else guess + h)
+        if probe.power > start.power:  # uphill: carry on past the probe
+            anchor, direction = probe, math.copysign(1.0, probe.candidate - start.candidate)
+        else:  # downhill: cross back over the guess to its other side
+            anchor, direction = start, math.copysign(1.0, start.candidate - probe.candidate)
+        step = h
+        while len(self.evaluations) < budget:
+            c = clamp(anchor.candidate + direction * step)
+            if any(abs(c - ev.candidate) < 0.5 * cfg.min_step for ev in self.evaluations):
+                break  # a bound, or a point already known, closes the bracket
+            ev: Evaluation = yield c
+            best = max(self.evaluations, key=lambda m: m.power)
+            margin = math.hypot(ev.stderr, best.stderr) if math.isfinite(ev.stderr) else 0.0
+            if ev.power < best.power - margin:
+                break  # clearly worse than the best: the maximum is behind us
+            if ev.power > anchor.power:
+                step *= PHI  # still climbing: lengthen the stride
+            anchor = ev
+        # -- 2. Brent's localmin on f = -p inside the bracket around the best point ---------
+        ranked = sorted(self.evaluations, key=lambda m: -m.power)
+        best_g = ranked[0].candidate
+        left = max((m.candidate for m in ranked if m.candidate < best_g), default=lo)
+        right = min((m.candidate for m in ranked if m.candidate > best_g), default=hi)
+        x, fx = best_g, -ranked[0].power
+        w, fw = (ranked[1].candidate, -ranked[1].power) if len(ranked) > 1 else (x, fx)
+        v, fv = (ranked[2].candidate, -ranked[2].power) if len(ranked) > 2 else (w, fw)
+        d = e = right - left  # lets the first step be parabolic
+        tol1 = self._tol([(x, -fx), (w, -fw), (v, -fv)])
+        while True:
+            self.bracket = (left, right)
+            xm = 0.5 * (left + right)
+            tol2 = 2.0 * tol1
+            if abs(x - xm) <= tol2 - 0.5 * (right - left):
+                return self._final(x), "bracket within the tolerance"
+            if len(self.evaluations) >= budget:
+                return self._final(x), "evaluation budget spent"
+            golden = True
+            if abs(e) > tol1:  # try a parabolic step through x, w, v
+                r = (x - w) * (fx - fv)
+                q = (x - v) * (fx - fw)
+                p = (x - v) * q - (x - w) * r
+                q = 2.0 * (q - r)
+                if q > 0.0:
+                    p = -p
+                q = abs(q)
+                e_old, e = e, d
+                if abs(p) < abs(0.5 * q * e_old) and q * (left - x) < p < q * (right - x):
+                    d = p / q
+                    u = x + d
+                    golden = False
+                    if u - left < tol2 or right - u < tol2:
+                        d = tol1 if xm >= x else -tol1
+            if golden:
+                e = (left - x) if x >= xm else (right - x)
+                d = GOLDEN * e
+            u = x + (d if abs(d) >= tol1 else math.copysign(tol1, d if d != 0.0 else 1.0))
+            ev = yield u
+            u, fu = ev.candidate, -ev.power
+            if fu <= fx:
+                if u >= x:
+                    left = x
+                else:
+                    right = x
+                v, fv, w, fw, x, fx = w, fw, x, fx, u, fu
+            else:
+                if u < x:
+                    left = u
+                else:
+                    right = u
+                if fu <= fw or w == x:
+                    v, fv, w, fw = w, fw, u, fu
+                elif fu <= fv or v in (x, w):
+                    v, fv = u, fu
+            tol1 = self._tol([(x, -fx), (w, -fw), (v, -fv)])

@@ -1,0 +1,179 @@
+"""Perturbation-based extremum seeking, eq. (14) (after Krstić & Wang, Krstić & Deng).
+
+    wd      = ae sin(ωt) + θ
+    dθ/dt   = -αf θ + κ
+    dκ/dt   = -α0 κ + α0 kf1 (sat(p) - η) ae sin(ωt)                            (14)
+    dη/dt   = -kf2 η + kf2 sat(p)
+with sat(p) = P·tanh(p/P), ad = ae ω cos ωt + dθ/dt and jd = -ae ω² sin ωt + d²θ/dt²
+(analytic derivatives, as the paper asks). Forward Euler at the loop rate: every rate here
+is ≤ 15 1/s, so the error at 1 kHz is negligible next to the averaging approximation.
+
+Around it, for a person on the handle (none of it changes (14) itself):
+- lead-in: wd rises from the current velocity to θ(0) = γ2 through the trajectory filter, and
+  (14) starts once the start delay has passed and |e| ≤ ē1, |wd - γ2| ≤ ē2, with η(0) = p;
+- the dither amplitude ramps in (and out) over one period with a smoothstep, so wd, ad, jd
+  stay continuous;
+- projection: θ is kept inside the bracket [γ1, γ3], κ zeroed when it pushes outward
+  (the paper's footnote 2);
+- convergence: once θ has moved less than min_step over each of the last four dither periods
+  the dither fades out and wd holds θ. One evaluation (θ, η) is recorded per period.
+
+Default tuning (docs/seekers.md; the tests check it converges): ae = 0.2 rad/s,
+ω = 1.5 rad/s, α0 = 0.5 1/s, kf1 = 8, kf2 = 0.5 1/s, αf = 0. Three time scales: tracking
+(RISE's slow pole ≈ αr = 4 1/s, the fast one ≈ 45 1/s) > ω = 1.5 rad/s ≫ the θ adaptation
+rate kf1·ae²/2·|p''| ≈ 0.05-0.1 1/s for the users here. α0 well below ω keeps the stroke-angle
+ripple (at the revolution frequency, near ω) and the noise out of the gradient estimate. The
+dither costs ≈ |p''|ae²/4 ≈ 0.3 % of p while it runs; it stops once θ settles.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+from sessions.config import SeekerConfig
+from sessions.filters import TrajectoryFilter
+from sessions.seekers.base import DELAY, DONE, MEASURING, SETTLING, Evaluation, Seeker
+
+SETTLE_PERIODS = 4
+
+
+def _smoothstep(x: float) -> tuple[float, float, float]:
+    """s(x) = 3x² - 2x³ on [0, 1] and its first two derivatives."""
+    if x <= 0.0:
+        return 0.0, 0.0, 0.0
+    if x >= 1.0:
+        return 1.0, 0.0, 0.0
+    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x), 6.0 - 12.0 * x
+
+
+class PerturbationSeeker(Seeker):
+    kind = "perturbation"
+    __slots__ = (
+        "filter", "theta", "kappa", "eta", "t_es", "t_fade", "period", "period_start",
+        "theta_marks", "lo", "hi", "_dtheta", "_ddtheta", "_dither",
+    )  # fmt: skip
+
+    def __init__(self, cfg: SeekerConfig, dt: float, max_velocity: float) -> None:
+        super().__init__(cfg, dt, max_velocity)
+        self.filter = TrajectoryFilter(cfg.filter.order, cfg.filter.pole, dt)
+        self.lo, self.hi = cfg.bracket[0], cfg.bracket[2]
+        self.theta = cfg.bracket[1]
+        self.kappa = 0.0
+        self.eta = 0.0
+        self.t_es = math.inf
+        self.t_fade = math.inf
+        self.period = 2.0 * math.pi / cfg.omega
+        self.period_start = 0.0
+        self.theta_marks: list[float] = []
+        self._dtheta = 0.0
+        self._ddtheta = 0.0
+        self._dither = 0.0  # A(t)·sin(ω(t - t_es)) at the coming sample
+
+    def begin(self, w0: float) -> None:
+        self.filter.reset(w0)
+        self.wd, self.ad, self.jd = self.filter.wd, self.filter.ad, self.filter.jd
+        self.target = self.theta
+        self.phase = DELAY
+
+    def sat(self, p: float) -> float:
+        big = self.cfg.saturation
+        return big * math.tanh(p / big)
+
+    def amplitude(self, t: float) -> tuple[float, float, float]:
+        """A(t), A'(t), A''(t): ramp in over one period, ramp out over one after convergence."""
+        ae, T = self.cfg.amplitude, self.period
+        if self.t_es + T <= t < self.t_fade:
+            return ae, 0.0, 0.0
+        s, ds, dds = _smoothstep((t - self.t_es) / T)
+        if t >= self.t_fade:
+            r, dr, ddr = _smoothstep((t - self.t_fade) / T)
+            s, ds, dds = s * (1 - r), ds * (1 - r) - s * dr, dds * (1 - r) - 2 * ds * dr - s * ddr
+        return ae * s, ae * ds / T, ae * dds / (T * T)
+
+    def tell(self, t: float, q: float, p: float, e: float) -> Evaluation | None:
+        cfg, dt = self.cfg, self.dt
+        if self.phase in (DELAY, SETTLING):
+            self.phase = SETTLING if t >= cfg.start_delay else DELAY
+            if (
+                self.phase == SETTLING
+                and abs(e) <= cfg.e1
+                and abs(self.filter.wd - self.theta) <= cfg.e2
+            ):
+                self.phase = MEASURING
+                self.t_es = self.period_start = t
+                self.theta = self.filter.wd
+                self.eta = self.sat(p)
+                self.theta_marks = [self.theta]
+                self._dither = 0.0
+            else:
+                self.filter.step(self.theta)
+                f = self.filter
+                self.wd, self.ad, self.jd = f.wd, f.ad, f.jd
+                return None
+        ev = None
+        if self.phase == MEASURING:
+            ev = self._adapt(t, p)
+        # reference at t + dt
+        tn = t + dt
+        a, da, dda = self.amplitude(tn)
+        w = cfg.omega
+        s, c = math.sin(w * (tn - self.t_es)), math.cos(w * (tn - self.t_es))
+        self._dither = a * s
+        self.wd = self.theta + a * s
+        self.ad = self._dtheta + da * s + a * w * c
+        self.jd = self._ddtheta + dda * s + 2.0 * da * w * c - a * w * w * s
+        self.target = self.theta
+        if self.phase == DONE:
+            self.ad = da * s + a * w * c
+            self.jd = dda * s + 2.0 * da * w * c - a * w * w * s
+        return ev
+
+    def _adapt(self, t: float, p: float) -> Evaluation | None:
+        cfg, dt = self.cfg, self.dt
+        dither = self._dither
+        sp = self.sat(p)
+        dkappa = -cfg.alpha0 * self.kappa + cfg.alpha0 * cfg.kf1 * (sp - self.eta) * dither
+        dtheta = -cfg.alpha_f * self.theta + self.kappa
+        self.eta += dt * cfg.kf2 * (sp - self.eta)
+        self.kappa += dt * dkappa
+        theta = self.theta + dt * dtheta
+        if theta <= self.lo or theta >= self.hi:  # projection onto the bracket
+            theta = min(max(theta, self.lo), self.hi)
+            if (theta <= self.lo and self.kappa < 0) or (theta >= self.hi and self.kappa > 0):
+                self.kappa = 0.0
+                dkappa = 0.0
+            dtheta = 0.0
+        self.theta = theta
+        self._dtheta = dtheta
+        self._ddtheta = -cfg.alpha_f * dtheta + dkappa
+        if t - self.period_start < self.period:
+            return None
+        # one dither period done: record it, test convergence
+        self.period_start += self.period
+        ev = Evaluation(t, self.theta, self.eta, 0.0)
+        self.evaluations.append(ev)
+        self.theta_marks.append(self.theta)
+        marks = self.theta_marks[-(SETTLE_PERIODS + 1) :]
+        self.bracket = (
+            max(self.lo, self.theta - cfg.amplitude),
+            min(self.hi, self.theta + cfg.amplitude),
+        )
+        settled = len(marks) == SETTLE_PERIODS + 1 and all(
+            abs(b - a) < cfg.min_step for a, b in itertools.pairwise(marks)
+        )
+        if settled or len(self.evaluations) >= cfg.max_evaluations:
+            self.t_fade = t
+            self.phase = DONE
+            self.done = True
+            self.reason = "θ settled" if settled else "evaluation budget spent"
+            self.kappa = self._dtheta = self._ddtheta = 0.0
+        return ev
+
+    def best(self) -> Evaluation | None:
+        return self.evaluations[-1] if self.evaluations else None
+
+    def fraction(self) -> float:
+        if self.done:
+            return 1.0
+        return min(len(self.evaluations) / max(self.cfg.max_evaluations, 1), 0.99)
