@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 class NoFatigue:
     factor = 1.0
@@ -66,6 +68,8 @@ class ThreeCompartmentFatigue:
         self.mr = 1.0
         self.t = 0.0
         self.factor = 1.0
+        self._hist_t: list[float] = [0.0]
+        self._hist_f: list[float] = [1.0]
 
     def _rates(self, ma: float, mf: float, mr: float) -> tuple[float, float, float]:
         tl = self.tl
@@ -85,10 +89,15 @@ class ThreeCompartmentFatigue:
         self.mr += 0.5 * dt * (r1 + r2)
         self.t += dt
         self.factor = 1.0 - self.mf
+        if self.t - self._hist_t[-1] >= 0.1:
+            self._hist_t.append(self.t)
+            self._hist_f.append(self.factor)
 
     def factor_at(self, t: float) -> float:
-        if t < self.t - 1e-9:
-            raise ValueError("three-compartment fatigue is known only up to the present")
+        """The factor at any time: the past from a 0.1 s record, the future by integrating
+        a copy forward from now."""
+        if t <= self.t:
+            return float(np.interp(t, self._hist_t, self._hist_f))
         probe = ThreeCompartmentFatigue(self.tl, self.f, self.r)
         probe.ma, probe.mf, probe.mr, probe.t = self.ma, self.mf, self.mr, self.t
         step = 0.01

@@ -122,8 +122,13 @@ def _plot(result: Any, name: str, stem: Path) -> list[str]:
     a2.plot(grid, truth, color="grey", lw=1, label="true p(w) at t = 0")
     for i, ev in enumerate(result.evaluations):
         a2.plot(ev.candidate, ev.power, "o", color="C1", ms=4)
-        a2.annotate(str(i + 1), (ev.candidate, ev.power), fontsize=7, xytext=(3, 3),
-                    textcoords="offset points")
+        a2.annotate(
+            str(i + 1),
+            (ev.candidate, ev.power),
+            fontsize=7,
+            xytext=(3, 3),
+            textcoords="offset points",
+        )
     a2.set(xlabel="velocity [rad/s]", ylabel="p [W]", title="measured power, in order")
     a2.grid(alpha=0.3)
     a2.legend(fontsize=8)

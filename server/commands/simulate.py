@@ -31,9 +31,9 @@ def _clean(value: Any) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
+    from server.cli import UsageError
     from sessions.config import load_scenario
     from sessions.simulation import run_simulation, score
-    from server.cli import UsageError
 
     cfg = load_scenario(args.scenario)
     result = run_simulation(cfg)
@@ -53,13 +53,15 @@ def run(args: argparse.Namespace) -> int:
     )
     t99, t1 = figures["t_99"], figures["t_1pct"]
     print(
-        "           t_99 = " + (f"{t99:.1f} s" if t99 is not None else "never")
-        + "   t_1pct = " + (f"{t1:.1f} s" if t1 is not None else "never")
+        "           t_99 = "
+        + (f"{t99:.1f} s" if t99 is not None else "never")
+        + "   t_1pct = "
+        + (f"{t1:.1f} s" if t1 is not None else "never")
         + f"   evaluations = {len(figures['evaluations'])}"
     )
     print(
-        f"           W_min = {figures['passivity_min']:.3f} J   e_rms = {figures['e_rms']:.4f} rad/s"
-        f"   max|u| = {figures['max_abs_u']:.2f} N·m"
+        f"           W_min = {figures['passivity_min']:.3f} J   "
+        f"e_rms = {figures['e_rms']:.4f} rad/s   max|u| = {figures['max_abs_u']:.2f} N·m"
     )
     print(f"           {figures['sim_seconds']:.0f} s simulated in {figures['wall_seconds']:.2f} s")
     return 0

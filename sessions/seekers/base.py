@@ -16,7 +16,7 @@ evaluations. A plan reads like the algorithm it implements.
 from __future__ import annotations
 
 import math
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
 from sessions.config import SeekerConfig
@@ -157,6 +157,20 @@ class FilteredSeeker(Seeker):
             return
         self.target = self.clamp(cand)
         self.phase = SETTLING
+
+    def drive(self, f: Callable[[float], float], stderr: float = 0.0) -> float:
+        """Run the plan offline against a function p = f(γ), one evaluation a unit of time,
+        and return the setpoint it ends on: the search logic alone, without a machine. For
+        tests and what-if studies."""
+        self.plan_gen = self.plan()
+        self._next(None)
+        n = 0
+        while not self.done and n < 10 * self.cfg.max_evaluations:
+            n += 1
+            ev = Evaluation(float(n), self.target, f(self.target), stderr)
+            self.evaluations.append(ev)
+            self._next(ev)
+        return self.target
 
     def tell(self, t: float, q: float, p: float, e: float) -> Evaluation | None:
         ev = None

@@ -7,7 +7,7 @@ hard bounds [γ1, γ3]:
    the bracket; first towards the wider side, towards the slower speed on a tie: a person is
    safer probed slower), then step on in the uphill direction, the stride growing by the
    golden ratio while the power keeps rising, until a point is worse than the best by more
-   than the standard error of the difference (noise alone never closes a bracket) or a bound
+   than k standard errors of the difference (noise alone does not close a bracket) or a bound
    is reached. Every probe stays near the last good one: a person spends the search close to
    their best power.
 2. **Brent's localmin** (Algorithms for Minimization without Derivatives, 1973, ch. 5) on -p
@@ -84,8 +84,8 @@ class BrentSeeker(FilteredSeeker):
                 break  # a bound, or a point already known, closes the bracket
             ev: Evaluation = yield c
             best = max(self.evaluations, key=lambda m: m.power)
-            margin = math.hypot(ev.stderr, best.stderr) if math.isfinite(ev.stderr) else 0.0
-            if ev.power < best.power - margin:
+            margin = cfg.noise_k * math.hypot(ev.stderr, best.stderr)
+            if ev.power < best.power - (margin if math.isfinite(margin) else 0.0):
                 break  # clearly worse than the best: the maximum is behind us
             if ev.power > anchor.power:
                 step *= PHI  # still climbing: lengthen the stride

@@ -18,7 +18,7 @@ Around it, for a person on the handle (none of it changes (14) itself):
 - convergence: once θ has moved less than min_step over each of the last four dither periods
   the dither fades out and wd holds θ. One evaluation (θ, η) is recorded per period.
 
-Default tuning (docs/seekers.md; the tests check it converges): ae = 0.2 rad/s,
+Default tuning (docs/engine.md; the tests check it converges): ae = 0.2 rad/s,
 ω = 1.5 rad/s, α0 = 0.5 1/s, kf1 = 8, kf2 = 0.5 1/s, αf = 0. Three time scales: tracking
 (RISE's slow pole ≈ αr = 4 1/s, the fast one ≈ 45 1/s) > ω = 1.5 rad/s ≫ the θ adaptation
 rate kf1·ae²/2·|p''| ≈ 0.05-0.1 1/s for the users here. α0 well below ω keeps the stroke-angle

@@ -1,0 +1,97 @@
+"""`ergoseek simulate` and `ergoseek reproduce`, run as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sessions.telemetry import csv_header
+
+SCENARIO = """
+duration = 12.0
+rate = 500.0
+seed = 3
+[user]
+kind = "linear"
+tau0 = 2.0
+wmax = 6.0
+[seeker]
+kind = "parabolic"
+bracket = [1.0, 2.5, 4.0]
+objective = "surrogate"
+"""
+
+
+def ergoseek(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "server.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_simulate_json_and_csv(tmp_path: Path) -> None:
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(SCENARIO)
+    out = tmp_path / "t.csv"
+    proc = ergoseek("simulate", str(scenario), "--json", "--csv", str(out))
+    assert proc.returncode == 0, proc.stderr
+    figures = json.loads(proc.stdout)
+    for key in (
+        "w_star", "p_star", "wd_final", "power_ratio", "t_1pct", "t_99", "evaluations",
+        "passivity_min", "e_rms", "max_abs_u", "sim_seconds", "wall_seconds",
+    ):  # fmt: skip
+        assert key in figures
+    assert figures["w_star"] == pytest.approx(3.0)
+    assert figures["sim_seconds"] == 12.0
+    lines = out.read_text().splitlines()
+    assert lines[0] == csv_header()
+    assert len(lines) == 1 + 12 * 500
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ("duration = -5.0", "duration"),
+        ("[controller]\nks = nan", "controller.ks"),
+        ("[user]\nkind = 'robot'", "user.kind"),
+        ("[seeker]\nbracket = [3.0, 2.0, 4.0]", "seeker.bracket"),
+        ("[seeker]\nbracket = [1.0, 2.0, 40.0]", "seeker.bracket"),
+        ("[seeker]\nbrakcet = [1.0, 2.0, 4.0]", "seeker.brakcet"),
+        ("rate = 'fast'", "rate"),
+        ("[machine\ninertia = 1", "not valid TOML"),
+    ],
+)
+def test_bad_scenarios_exit_2_naming_the_key(tmp_path: Path, text: str, key: str) -> None:
+    scenario = tmp_path / "bad.toml"
+    scenario.write_text(text)
+    proc = ergoseek("simulate", str(scenario))
+    assert proc.returncode == 2
+    assert key in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert proc.stdout == ""
+
+
+def test_missing_scenario_is_a_one_line_error(tmp_path: Path) -> None:
+    proc = ergoseek("simulate", str(tmp_path / "nope.toml"))
+    assert proc.returncode == 2 and "no such file" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_reproduce_writes_figures_summary_and_csv(tmp_path: Path) -> None:
+    proc = ergoseek("reproduce", "exp1", "--out", str(tmp_path), "--duration", "20")
+    assert proc.returncode == 0, proc.stderr
+    for suffix in (".json", ".csv", "-velocity.png", "-torque.png", "-search.png"):
+        path = tmp_path / f"exp1{suffix}"
+        assert path.exists() and path.stat().st_size > 0
+    assert (tmp_path / "exp1-velocity.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = json.loads((tmp_path / "exp1.json").read_text())
+    assert summary["config"]["controller"]["ks"] == 1.0  # the paper's gains
+    assert summary["w_star"] == pytest.approx(3.0)

@@ -1,0 +1,71 @@
+"""Trajectory filters (32)/(33): exact against the closed-form step response."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sessions.filters import TrajectoryFilter
+
+
+def step_response(n: int, p: float, t: float) -> tuple[float, float, float]:
+    """Step response of pⁿ/(s+p)ⁿ and its first two derivatives (closed form)."""
+    x = p * t
+    y = 1.0 - math.exp(-x) * sum(x**k / math.factorial(k) for k in range(n))
+    h = p**n * t ** (n - 1) * math.exp(-x) / math.factorial(n - 1)  # impulse response
+    dh = h * ((n - 1) / t - p) if t > 0 else (p**2 if n == 2 else 0.0)
+    return y, h, dh
+
+
+@pytest.mark.parametrize("order", [3, 4])
+@pytest.mark.parametrize("pole", [3.0, 10.0])
+def test_step_response_and_derivatives_are_exact(order: int, pole: float) -> None:
+    dt, gamma = 1e-3, 2.5
+    f = TrajectoryFilter(order, pole, dt)
+    f.reset(0.0)
+    worst = 0.0
+    for k in range(1, 6001):
+        f.step(gamma)
+        y, h, dh = step_response(order, pole, k * dt)
+        worst = max(
+            worst,
+            abs(f.wd - gamma * y),
+            abs(f.ad - gamma * h) / pole,
+            abs(f.jd - gamma * dh) / pole**2,
+        )
+    assert worst < 1e-9
+
+
+def test_dc_gain_is_one_and_the_paper_coefficients() -> None:
+    f = TrajectoryFilter(4, 3.0, 1e-3)
+    f.reset(1.0)
+    for _ in range(20_000):
+        f.step(4.0)
+    assert f.wd == pytest.approx(4.0, abs=1e-12)
+    assert abs(f.ad) < 1e-12 and abs(f.jd) < 1e-12
+    # (32): 81 / (s⁴ + 12 s³ + 54 s² + 108 s + 81) is (s + 3)⁴
+    assert np.allclose(np.poly([-3.0] * 4), [1, 12, 54, 108, 81])
+
+
+def test_derivative_outputs_are_consistent_with_wd() -> None:
+    dt = 1e-3
+    f = TrajectoryFilter(4, 3.0, dt)
+    f.reset(0.0)
+    wd, ad, jd = [], [], []
+    for k in range(4000):
+        f.step(1.0 if k < 1500 else 3.0)
+        wd.append(f.wd)
+        ad.append(f.ad)
+        jd.append(f.jd)
+    wd_, ad_, jd_ = map(np.array, (wd, ad, jd))
+    assert np.max(np.abs(np.gradient(wd_, dt)[5:-5] - ad_[5:-5])) < 2e-3
+    assert np.max(np.abs(np.gradient(ad_, dt)[5:-5] - jd_[5:-5])) < 2e-2
+
+
+def test_reset_is_bumpless() -> None:
+    f = TrajectoryFilter(4, 3.0, 1e-3)
+    f.reset(2.0)
+    f.step(2.0)
+    assert (f.wd, f.ad, f.jd) == pytest.approx((2.0, 0.0, 0.0), abs=1e-15)
