@@ -21,7 +21,22 @@ import math
 class TrajectoryFilter:
     """Exact discrete form of (32)/(33) at a fixed period. Read wd, ad, jd; then :meth:`step`."""
 
-    __slots__ = ("order", "pole", "dt", "E", "h1", "h2", "h3", "y", "wd", "ad", "jd")
+    __slots__ = (
+        "order",
+        "pole",
+        "dt",
+        "E",
+        "h1",
+        "h2",
+        "h3",
+        "y1",
+        "y2",
+        "y3",
+        "y4",
+        "wd",
+        "ad",
+        "jd",
+    )
 
     def __init__(self, order: int, pole: float, dt: float) -> None:
         if order not in (3, 4):
@@ -32,35 +47,31 @@ class TrajectoryFilter:
         h = pole * dt
         self.E = math.exp(-h)
         self.h1, self.h2, self.h3 = h, h * h / 2.0, h * h * h / 6.0
-        self.y = [0.0] * order
-        self.wd = self.ad = self.jd = 0.0
+        self.reset(0.0)
 
     def reset(self, value: float) -> None:
         """Rest at ``value``: wd = value, ad = jd = 0 (a bumpless start from the current w)."""
-        self.y = [value] * self.order
+        self.y1 = self.y2 = self.y3 = self.y4 = value
         self.wd, self.ad, self.jd = value, 0.0, 0.0
 
     def step(self, gamma: float) -> None:
         """Advance one period with the candidate γ held."""
         E, h1, h2, p = self.E, self.h1, self.h2, self.pole
+        d1, d2, d3 = self.y1 - gamma, self.y2 - gamma, self.y3 - gamma
         if self.order == 4:
-            y1, y2, y3, y4 = self.y
-            d1, d2, d3, d4 = y1 - gamma, y2 - gamma, y3 - gamma, y4 - gamma
-            d4 = E * (d4 + h1 * d3 + h2 * d2 + self.h3 * d1)
+            d4 = E * (self.y4 - gamma + h1 * d3 + h2 * d2 + self.h3 * d1)
             d3 = E * (d3 + h1 * d2 + h2 * d1)
             d2 = E * (d2 + h1 * d1)
             d1 = E * d1
-            self.y = [d1 + gamma, d2 + gamma, d3 + gamma, d4 + gamma]
-            self.wd = d4 + gamma
+            self.y4 = wd = d4 + gamma
             self.ad = p * (d3 - d4)
             self.jd = p * p * (d2 - 2.0 * d3 + d4)
-        else:
-            y1, y2, y3 = self.y
-            d1, d2, d3 = y1 - gamma, y2 - gamma, y3 - gamma
+        else:  # three lags: y3 is the output
             d3 = E * (d3 + h1 * d2 + h2 * d1)
             d2 = E * (d2 + h1 * d1)
             d1 = E * d1
-            self.y = [d1 + gamma, d2 + gamma, d3 + gamma]
-            self.wd = d3 + gamma
+            wd = d3 + gamma
             self.ad = p * (d2 - d3)
             self.jd = p * p * (d1 - 2.0 * d2 + d3)
+        self.y1, self.y2, self.y3 = d1 + gamma, d2 + gamma, d3 + gamma
+        self.wd = wd
