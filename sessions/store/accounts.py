@@ -1,0 +1,150 @@
+"""Accounts: who may log in to the server, with which role. Passwords are kept as argon2id
+hashes (argon2-cffi); hashing happens outside any transaction. Login names are
+case-insensitive: stored lowercased."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
+
+from sessions.store import validate as v
+from sessions.store.database import Database
+from sessions.store.errors import ConflictError, NotFoundError, StoreValueError
+from sessions.store.models import ROLES, Account
+from sessions.store.records import AccountRecord, Role
+
+_LOGIN = re.compile(r"[a-z0-9][a-z0-9._@-]*")
+PASSWORD_MIN = 8
+PASSWORD_MAX = 1024
+
+
+def _login(value: Any) -> str:
+    login = v.text("login", value, max_len=64).lower()
+    if not _LOGIN.fullmatch(login):
+        raise StoreValueError(
+            "login", f"{login!r} may hold only letters, digits and . _ @ - (not first)"
+        )
+    return login
+
+
+def _password(value: Any) -> str:
+    if not isinstance(value, str):
+        raise StoreValueError("password", "must be a string")
+    if len(value) < PASSWORD_MIN:
+        raise StoreValueError("password", f"shorter than {PASSWORD_MIN} characters")
+    if len(value) > PASSWORD_MAX:
+        raise StoreValueError("password", f"longer than {PASSWORD_MAX} characters")
+    return value
+
+
+class AccountRepository:
+    def __init__(self, db: Database, hasher: PasswordHasher) -> None:
+        self._db = db
+        self._hasher = hasher
+        self._dummy: str | None = None
+
+    def create(
+        self, login: str, password: str, role: Role = "viewer", *, disabled: bool = False
+    ) -> AccountRecord:
+        """A new account; :class:`ConflictError` if the login name is taken."""
+        name = _login(login)
+        role = v.choice("role", role, ROLES)  # type: ignore[assignment]
+        disabled = v.flag("disabled", disabled)
+        digest = self._hasher.hash(_password(password))
+        try:
+            with self._db.session(write=True) as s:
+                if s.scalar(select(Account.id).where(Account.login == name)) is not None:
+                    raise ConflictError(f"login name {name!r} is taken")
+                row = Account(login=name, password_hash=digest, role=role, disabled=disabled)
+                s.add(row)
+                s.flush()
+                return AccountRecord.model_validate(row)
+        except IntegrityError:  # lost a race with another process creating the same name
+            raise ConflictError(f"login name {name!r} is taken") from None
+
+    def get(self, account_id: int) -> AccountRecord:
+        with self._db.session(write=False) as s:
+            row = s.get(Account, account_id)
+            if row is None:
+                raise NotFoundError("account", account_id)
+            return AccountRecord.model_validate(row)
+
+    def by_login(self, login: str) -> AccountRecord | None:
+        name = str(login).strip().lower()
+        with self._db.session(write=False) as s:
+            row = s.scalar(select(Account).where(Account.login == name))
+            return None if row is None else AccountRecord.model_validate(row)
+
+    def list(self) -> list[AccountRecord]:
+        """Every account, by login name."""
+        with self._db.session(write=False) as s:
+            rows = s.scalars(select(Account).order_by(Account.login))
+            return [AccountRecord.model_validate(r) for r in rows]
+
+    def count(self) -> int:
+        with self._db.session(write=False) as s:
+            return int(s.scalar(select(func.count()).select_from(Account)) or 0)
+
+    def update(
+        self, account_id: int, *, role: Role | None = None, disabled: bool | None = None
+    ) -> AccountRecord:
+        if role is not None:
+            role = v.choice("role", role, ROLES)  # type: ignore[assignment]
+        if disabled is not None:
+            disabled = v.flag("disabled", disabled)
+        with self._db.session(write=True) as s:
+            row = s.get(Account, account_id)
+            if row is None:
+                raise NotFoundError("account", account_id)
+            if role is not None:
+                row.role = role
+            if disabled is not None:
+                row.disabled = disabled
+            s.flush()
+            return AccountRecord.model_validate(row)
+
+    def set_password(self, account_id: int, password: str) -> None:
+        digest = self._hasher.hash(_password(password))
+        with self._db.session(write=True) as s:
+            row = s.get(Account, account_id)
+            if row is None:
+                raise NotFoundError("account", account_id)
+            row.password_hash = digest
+
+    def authenticate(self, login: str, password: str) -> AccountRecord | None:
+        """The account if the password matches and the account is enabled, else None. An
+        unknown login costs the same hashing time as a wrong password."""
+        name = str(login).strip().lower()
+        with self._db.session(write=False) as s:
+            row = s.scalar(select(Account).where(Account.login == name))
+            found = None if row is None else (AccountRecord.model_validate(row), row.password_hash)
+        if found is None:
+            if self._dummy is None:
+                self._dummy = self._hasher.hash("no such account")
+            self._verify(self._dummy, str(password))
+            return None
+        record, digest = found
+        if not self._verify(digest, str(password)) or record.disabled:
+            return None
+        if self._hasher.check_needs_rehash(digest):
+            self.set_password(record.id, str(password))
+        return record
+
+    def delete(self, account_id: int) -> None:
+        """Remove an account; the sessions it started stay, with no starter."""
+        with self._db.session(write=True) as s:
+            row = s.get(Account, account_id)
+            if row is None:
+                raise NotFoundError("account", account_id)
+            s.delete(row)
+
+    def _verify(self, digest: str, password: str) -> bool:
+        try:
+            return self._hasher.verify(digest, password)
+        except (VerificationError, InvalidHashError):
+            return False

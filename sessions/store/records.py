@@ -1,0 +1,165 @@
+"""What the store hands back: plain, frozen pydantic records (and one numpy container),
+detached from any database session. Times of day are aware UTC datetimes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any, Generic, Literal, TypeVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from sessions.config import SessionConfig
+from sessions.summary import SessionStatus, SessionSummary
+from sessions.telemetry import INDEX
+
+Role = Literal["admin", "trainer", "viewer"]
+T = TypeVar("T")
+
+
+class Record(BaseModel):
+    model_config = ConfigDict(frozen=True, from_attributes=True)
+
+
+class AccountRecord(Record):
+    id: int
+    login: str
+    role: Role
+    disabled: bool
+    created_at: datetime
+
+
+class UserRecord(Record):
+    id: int
+    name: str
+    notes: str
+    body_mass_kg: float | None
+    limb: str | None
+    created_at: datetime
+    updated_at: datetime
+
+
+class SessionRecord(Record):
+    """A session and its summary (live figures while it runs)."""
+
+    id: int
+    user_id: int
+    account_id: int | None
+    backend: str
+    config: dict[str, Any]
+    status: SessionStatus
+    started_at: datetime
+    ended_at: datetime | None
+    seeker: str
+    optimum_w: float | None
+    optimum_p: float | None
+    converged: bool
+    mean_power: float
+    peak_power: float
+    work: float
+    duration: float
+    passivity_min: float
+    evaluation_count: int
+    abort_reason: str | None
+
+    def summary(self) -> SessionSummary:
+        return SessionSummary(
+            optimum_w=self.optimum_w,
+            optimum_p=self.optimum_p,
+            converged=self.converged,
+            seeker=self.seeker,
+            mean_power=self.mean_power,
+            peak_power=self.peak_power,
+            work=self.work,
+            duration=self.duration,
+            passivity_min=self.passivity_min,
+            evaluations=self.evaluation_count,
+            abort_reason=self.abort_reason,
+        )
+
+    def session_config(self) -> SessionConfig:
+        return SessionConfig.model_validate(self.config)
+
+
+class EvaluationRecord(Record):
+    """A measured candidate; ``stderr`` is None where the seeker had no estimate (∞)."""
+
+    id: int
+    session_id: int
+    t: float
+    candidate: float
+    power: float
+    stderr: float | None
+
+
+class EventRecord(Record):
+    id: int
+    session_id: int
+    t: float
+    kind: str
+    detail: dict[str, Any]
+    created_at: datetime
+
+
+class SetpointRecord(Record):
+    id: int
+    user_id: int
+    velocity: float
+    power: float | None
+    seeker: str
+    session_id: int | None
+    created_at: datetime
+    accepted: bool
+
+
+class SessionDetail(Record):
+    """One session's summary with everything its seeker measured and every event."""
+
+    session: SessionRecord
+    evaluations: list[EvaluationRecord]
+    events: list[EventRecord]
+
+
+class Page(BaseModel, Generic[T]):
+    """One page of a list in a stable order, with the number of matches over all pages."""
+
+    model_config = ConfigDict(frozen=True)
+
+    items: list[T]
+    total: int
+    limit: int
+    offset: int
+
+
+class TelemetrySpan(Record):
+    """What a session's telemetry covers, without decoding it."""
+
+    samples: int
+    chunks: int
+    t0: float | None
+    t1: float | None
+    stored_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryData:
+    """Telemetry of one session: ``columns`` is (channels, samples) float64 in the order of
+    :data:`sessions.telemetry.CHANNELS`. ``decimated`` says whether these are min/max pairs
+    of buckets rather than the samples themselves; ``samples`` counts the full-rate samples
+    of the time window either way."""
+
+    columns: np.ndarray
+    decimated: bool
+    samples: int
+
+    @property
+    def rows(self) -> np.ndarray:
+        """(samples, channels), a view."""
+        return self.columns.T
+
+    def column(self, name: str) -> np.ndarray:
+        return self.columns[INDEX[name]]
+
+    def __len__(self) -> int:
+        return int(self.columns.shape[1])

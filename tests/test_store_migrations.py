@@ -1,0 +1,115 @@
+"""The Alembic migrations shipped in the package: upgrade from empty, downgrade to nothing
+and up again, the models equal to the migrated schema, and ``ergoseek db``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from sqlalchemy import inspect
+
+from server.cli import main
+from sessions.store import Store, StoreError, open_store
+from sessions.store.database import create_store_engine
+from sessions.store.migrate import MIGRATIONS, head_revision
+from sessions.store.models import Base
+from tests.store_data import FAST_HASHER
+
+pytest_plugins = ["tests.store_support"]
+
+TABLES = {
+    "accounts", "users", "sessions", "seeker_evaluations", "setpoints", "telemetry_chunks",
+    "events",
+}  # fmt: skip
+
+
+def _schema(url: str) -> tuple[set[str], list[object]]:
+    """Tables present, and what autogenerate would change to reach the models."""
+    engine = create_store_engine(url)
+    try:
+        with engine.connect() as conn:
+            tables = set(inspect(conn).get_table_names())
+            ctx = MigrationContext.configure(conn, opts={"compare_type": True})
+            diff = compare_metadata(ctx, Base.metadata)
+    finally:
+        engine.dispose()
+    return tables, diff
+
+
+def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
+    st = Store(db_url, password_hasher=FAST_HASHER)
+    try:
+        assert st.current_revision() is None
+        with pytest.raises(StoreError, match="db upgrade"):
+            open_store(db_url, upgrade=False)
+        st.upgrade()
+        assert st.current_revision() == head_revision() == "0001"
+        tables, diff = _schema(db_url)
+        assert tables == TABLES | {"alembic_version"}
+        assert diff == []
+        user = st.users.create("before")
+        st.downgrade("base")
+        assert st.current_revision() is None
+        assert _schema(db_url)[0] <= {"alembic_version"}
+        st.upgrade()
+        assert st.current_revision() == "0001"
+        tables, diff = _schema(db_url)
+        assert tables == TABLES | {"alembic_version"} and diff == []
+        again = st.users.create("after")
+        assert again.id == user.id  # a fresh table
+        st.upgrade()  # at head: nothing to do
+    finally:
+        st.close()
+    reopened = open_store(db_url, upgrade=False, password_hasher=FAST_HASHER)
+    assert reopened.users.get(again.id).name == "after"
+    reopened.close()
+
+
+def test_migrations_ship_with_the_package() -> None:
+    assert (MIGRATIONS / "env.py").is_file()
+    assert (MIGRATIONS / "script.py.mako").is_file()
+    assert sorted(p.name for p in (MIGRATIONS / "versions").glob("*.py")) == ["0001_initial.py"]
+    assert not list(Path(MIGRATIONS).rglob("alembic.ini"))
+
+
+def test_db_command_upgrade_and_current(
+    db_url: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("ERGOSEEK_DATABASE_URL", db_url)
+    if db_url.startswith("sqlite"):
+        assert main(["db", "current"]) == 2
+        assert "no database at" in capsys.readouterr().err
+    else:
+        assert main(["db", "current"]) == 0
+        assert "revision none (empty)" in capsys.readouterr().out
+    assert main(["db", "upgrade"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().endswith("revision 0001 (newest)")
+    monkeypatch.delenv("ERGOSEEK_DATABASE_URL")
+    assert main(["db", "current", "--url", db_url]) == 0
+    assert "revision 0001 (newest)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["db", "current", "--url", "mysql://h/db"], "unsupported database 'mysql'"),
+        (["db", "upgrade", "--url", "not a url"], "not a database URL"),
+        (["db", "upgrade", "--url", "sqlite://"], "in-memory SQLite is not supported"),
+        (["db", "current", "--url", "postgresql://x@127.0.0.1:9/none"], "connection"),
+    ],
+)
+def test_db_command_errors_are_one_line(
+    args: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and err.startswith("ergoseek db: error: ")
+
+
+def test_db_command_unknown_revision(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    url = f"sqlite:///{tmp_path / 'x.sqlite3'}"
+    assert main(["db", "upgrade", "--url", url, "--revision", "9999"]) == 2
+    assert "9999" in capsys.readouterr().err
