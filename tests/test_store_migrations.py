@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect
@@ -21,7 +22,7 @@ pytest_plugins = ["tests.store_support"]
 
 TABLES = {
     "accounts", "users", "sessions", "seeker_evaluations", "setpoints", "telemetry_chunks",
-    "events",
+    "events", "auth_tokens",
 }  # fmt: skip
 
 
@@ -45,7 +46,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         with pytest.raises(StoreError, match="db upgrade"):
             open_store(db_url, upgrade=False)
         st.upgrade()
-        assert st.current_revision() == head_revision() == "0001"
+        assert st.current_revision() == head_revision() == "0002"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"}
         assert diff == []
@@ -54,7 +55,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         assert st.current_revision() is None
         assert _schema(db_url)[0] <= {"alembic_version"}
         st.upgrade()
-        assert st.current_revision() == "0001"
+        assert st.current_revision() == "0002"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"} and diff == []
         again = st.users.create("after")
@@ -70,7 +71,10 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
 def test_migrations_ship_with_the_package() -> None:
     assert (MIGRATIONS / "env.py").is_file()
     assert (MIGRATIONS / "script.py.mako").is_file()
-    assert sorted(p.name for p in (MIGRATIONS / "versions").glob("*.py")) == ["0001_initial.py"]
+    assert sorted(p.name for p in (MIGRATIONS / "versions").glob("*.py")) == [
+        "0001_initial.py",
+        "0002_auth_tokens_sim_profile.py",
+    ]
     assert not list(Path(MIGRATIONS).rglob("alembic.ini"))
 
 
@@ -86,10 +90,30 @@ def test_db_command_upgrade_and_current(
         assert "revision none (empty)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
     out = capsys.readouterr().out
-    assert out.strip().endswith("revision 0001 (newest)")
+    assert out.strip().endswith("revision 0002 (newest)")
     monkeypatch.delenv("ERGOSEEK_DATABASE_URL")
     assert main(["db", "current", "--url", db_url]) == 0
-    assert "revision 0001 (newest)" in capsys.readouterr().out
+    assert "revision 0002 (newest)" in capsys.readouterr().out
+
+
+def test_upgrade_from_the_first_revision_keeps_the_data(db_url: str) -> None:
+    st = Store(db_url, password_hasher=FAST_HASHER)
+    try:
+        st.upgrade("0001")
+        with st._db.session(write=True) as s:  # a user written by the first schema
+            s.execute(
+                sa.text(
+                    "INSERT INTO users (name, notes, created_at, updated_at) "
+                    "VALUES ('Ada', '', CURRENT_TIMESTAMP, CURRENT_TIMESTAMP)"
+                )
+            )
+        st.upgrade()
+        (ada,) = st.users.list().items
+        assert ada.name == "Ada" and ada.sim_profile is None
+        st.downgrade("0001")
+        assert st.current_revision() == "0001"
+    finally:
+        st.close()
 
 
 @pytest.mark.parametrize(

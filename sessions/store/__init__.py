@@ -25,6 +25,7 @@ from sessions.store.records import (
     SetpointRecord,
     TelemetryData,
     TelemetrySpan,
+    TokenRecord,
     UserRecord,
 )
 from sessions.store.store import Store, open_server_store, open_store
@@ -50,6 +51,7 @@ __all__ = [
     "StoreValueError",
     "TelemetryData",
     "TelemetrySpan",
+    "TokenRecord",
     "UserRecord",
     "database_url",
     "default_data_dir",

@@ -33,6 +33,7 @@ from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 ROLES = ("admin", "trainer", "viewer")
+TOKEN_KINDS = ("cookie", "bearer")
 STATUSES = ("running", "completed", "stopped", "aborted", "faulted")
 
 NAMING = {
@@ -105,6 +106,9 @@ class User(Base):
     limb: Mapped[str | None] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    # the simulated person (a sessions.config.UserConfig) that stands in for this user when
+    # the machine is simulated; NULL for people who only use real hardware
+    sim_profile: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 
 class ExerciseSession(Base):
@@ -207,3 +211,24 @@ class Event(Base):
     kind: Mapped[str] = mapped_column(String(32))
     detail: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class AuthToken(Base):
+    """A login: a browser session (cookie) or an API client's bearer token. Only the SHA-256
+    digest of the random token is stored, so a copy of the database logs nobody in."""
+
+    __tablename__ = "auth_tokens"
+    __table_args__ = (
+        CheckConstraint(_in("kind", TOKEN_KINDS), name="kind"),
+        Index(None, "expires_at"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    account_id: Mapped[int] = mapped_column(
+        ForeignKey("accounts.id", ondelete="CASCADE"), index=True
+    )
+    digest: Mapped[str] = mapped_column(String(64), unique=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    revoked: Mapped[bool] = mapped_column(Boolean, default=False)

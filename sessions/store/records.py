@@ -30,6 +30,17 @@ class AccountRecord(Record):
     created_at: datetime
 
 
+class TokenRecord(Record):
+    """A login (browser cookie or bearer token); the token itself is never stored."""
+
+    id: int
+    account_id: int
+    kind: Literal["cookie", "bearer"]
+    created_at: datetime
+    expires_at: datetime
+    revoked: bool
+
+
 class UserRecord(Record):
     id: int
     name: str
@@ -38,6 +49,7 @@ class UserRecord(Record):
     limb: str | None
     created_at: datetime
     updated_at: datetime
+    sim_profile: dict[str, Any] | None = None  # a sessions.config.UserConfig, for simulation
 
 
 class SessionRecord(Record):

@@ -17,6 +17,7 @@ from sessions.store.history import RESTART_REASON, SessionRepository
 from sessions.store.recorder import SessionRecorder
 from sessions.store.setpoints import SetpointRepository
 from sessions.store.timeseries import TelemetryRepository
+from sessions.store.tokens import TokenRepository
 from sessions.store.users import UserRepository
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,7 @@ class Store:
         self.sessions = SessionRepository(self._db)
         self.setpoints = SetpointRepository(self._db)
         self.telemetry = TelemetryRepository(self._db)
+        self.tokens = TokenRepository(self._db)
 
     @property
     def dialect(self) -> str:

@@ -5,11 +5,13 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any
 
+from pydantic import ValidationError
 from sqlalchemy import func, select
 
+from sessions.config import UserConfig, describe_validation_error
 from sessions.store import validate as v
 from sessions.store.database import Database
-from sessions.store.errors import NotFoundError
+from sessions.store.errors import NotFoundError, StoreValueError
 from sessions.store.models import User, utcnow
 from sessions.store.records import Page, UserRecord
 
@@ -26,8 +28,24 @@ def page_bounds(limit: Any, offset: Any, *, max_limit: int = 1000) -> tuple[int,
     return v.integer("limit", limit, ge=1, le=max_limit), v.integer("offset", offset, ge=0)
 
 
-def _fields(name: Any, notes: Any, body_mass_kg: Any, limb: Any) -> dict[str, Any]:
+def _sim_profile(value: Any) -> dict[str, Any] | None:
+    """A simulated person (:class:`sessions.config.UserConfig`), validated and normalised."""
+    if value is None:
+        return None
+    if isinstance(value, UserConfig):
+        return value.model_dump(mode="json")
+    try:
+        return UserConfig.model_validate(value).model_dump(mode="json")
+    except ValidationError as exc:
+        raise StoreValueError("sim_profile", describe_validation_error(exc)) from None
+
+
+def _fields(
+    name: Any, notes: Any, body_mass_kg: Any, limb: Any, sim_profile: Any = UNSET
+) -> dict[str, Any]:
     out: dict[str, Any] = {}
+    if sim_profile is not UNSET:
+        out["sim_profile"] = _sim_profile(sim_profile)
     if name is not UNSET:
         out["name"] = v.text("name", name, max_len=200)
     if notes is not UNSET:
@@ -54,8 +72,9 @@ class UserRepository:
         notes: str = "",
         body_mass_kg: float | None = None,
         limb: str | None = None,
+        sim_profile: UserConfig | dict[str, Any] | None = None,
     ) -> UserRecord:
-        fields = _fields(name, notes, body_mass_kg, limb)
+        fields = _fields(name, notes, body_mass_kg, limb, sim_profile)
         with self._db.session(write=True) as s:
             now = utcnow()
             row = User(created_at=now, updated_at=now, **fields)
@@ -95,8 +114,9 @@ class UserRepository:
         notes: str | _Unset = UNSET,
         body_mass_kg: float | _Unset | None = UNSET,
         limb: str | _Unset | None = UNSET,
+        sim_profile: UserConfig | dict[str, Any] | _Unset | None = UNSET,
     ) -> UserRecord:
-        fields = _fields(name, notes, body_mass_kg, limb)
+        fields = _fields(name, notes, body_mass_kg, limb, sim_profile)
         with self._db.session(write=True) as s:
             row = s.get(User, user_id)
             if row is None:
