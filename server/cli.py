@@ -13,7 +13,9 @@ import sys
 from collections.abc import Sequence
 
 # Modules under server.commands, each with ``register(subparsers)``.
-COMMANDS: tuple[str, ...] = ("simulate", "reproduce")
+COMMANDS: tuple[str, ...] = (
+    "simulate", "reproduce", "run", "emulate-odrive", "serve", "demo", "account", "db",
+)  # fmt: skip
 
 
 class UsageError(Exception):
@@ -45,5 +47,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m server.cli` runs `python -m server` (the importable cli)
+    import runpy
+
+    runpy.run_module("server", run_name="__main__")

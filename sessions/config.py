@@ -8,6 +8,7 @@ default; unknown keys are rejected so a typo never silently falls back to a defa
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -121,7 +122,7 @@ class SeekerConfig(StrictModel):
     @model_validator(mode="after")
     def _windows(self) -> SeekerConfig:
         if self.max_window < self.window:
-            raise ValueError("max_window must be at least window")
+            raise ValueError("max_window: must be at least window")
         return self
 
 
@@ -145,12 +146,15 @@ class SessionConfig(StrictModel):
                 f"= {self.machine.max_velocity}"
             )
         if self.seeker.setpoint is not None and self.seeker.setpoint >= self.machine.max_velocity:
-            raise ValueError("seeker.setpoint must be below machine.max_velocity")
+            raise ValueError("seeker.setpoint: must be below machine.max_velocity")
         return self
 
     @property
     def dt(self) -> float:
         return 1.0 / self.rate
+
+
+_KEY = re.compile(r"[a-z_][a-z0-9_]*(\.[a-z_][a-z0-9_]*)*")
 
 
 class ScenarioError(ValueError):
@@ -161,8 +165,15 @@ def describe_validation_error(exc: ValidationError) -> str:
     """One line per problem: ``key.path: reason``."""
     parts = []
     for err in exc.errors():
-        loc = ".".join(str(x) for x in err["loc"]) or "scenario"
+        path = [str(x) for x in err["loc"]]
         msg = err["msg"].removeprefix("Value error, ")
+        # a model-level check names its key itself: "seeker.bracket: …" or "max_window: …"
+        key, sep, rest = msg.partition(": ")
+        if sep and _KEY.fullmatch(key):
+            inner = key.split(".")
+            path = inner if path and path[-1:] == inner[:1] else [*path, *inner]
+            msg = rest
+        loc = ".".join(path) or "scenario"
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif err["type"] != "value_error" and "input" in err and not isinstance(err["input"], dict):

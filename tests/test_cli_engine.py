@@ -28,7 +28,7 @@ objective = "surrogate"
 
 def ergoseek(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "server.cli", *args],
+        [sys.executable, "-m", "server", *args],
         capture_output=True,
         text=True,
         cwd=cwd,

@@ -1,0 +1,123 @@
+"""The machine lifecycle and the simulated machine.
+
+Independent truths: the engine's own :func:`run_simulation` (the sim backend driven through
+read → step → write must be the same computation, bit for bit), and the plant's equation (1)
+integrated by hand for the torque clamp.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sessions.config import parse_session_config
+from sessions.loop import Loop
+from sessions.machine import MachineError, MachineSpec, MachineState, make_machine
+from sessions.machine.sim import SimMachine
+from sessions.plant import Plant
+from sessions.simulation import run_simulation
+from sessions.users import SimulatedUser
+
+
+def cfg_(**over):
+    return parse_session_config({"duration": 2.0, "user": {"noise": 0.03, "ripple": 0.1}, **over})
+
+
+def test_lifecycle_order_is_enforced():
+    m = SimMachine()
+    with pytest.raises(MachineError, match="cannot arm in state UNCONNECTED"):
+        m.arm(cfg_())
+    m.connect()
+    assert m.state is MachineState.CONNECTED
+    with pytest.raises(MachineError, match="cannot write"):
+        m.write(0.0)
+    m.arm(cfg_())
+    assert m.state is MachineState.ARMED
+    m.read()  # reading an armed machine is allowed: the loop starts from its state
+    with pytest.raises(MachineError, match="cannot write"):
+        m.write(0.0)
+    m.activate()
+    m.write(0.0)
+    m.disarm()
+    assert m.state is MachineState.DISARMED
+    m.arm(cfg_())  # a disarmed machine can be armed for the next session
+    m.close()
+    assert m.state is MachineState.CLOSED
+    with pytest.raises(MachineError):
+        m.read()
+
+
+def test_sim_backend_is_the_simulation_step_for_step():
+    cfg = cfg_()
+    ref = run_simulation(cfg)
+    m = make_machine(MachineSpec(kind="sim"))
+    m.connect()
+    m.arm(cfg)
+    loop = Loop(cfg)
+    q0, w0, _ = m.read()
+    loop.begin(q0, w0)
+    m.activate()
+    rows = []
+    for _ in range(round(cfg.duration * cfg.rate)):
+        q, w, tau = m.read()
+        m.write(loop.step(q, w, tau))
+        rows.append(loop.row)
+    np.testing.assert_array_equal(np.array(rows), ref.telemetry)
+
+
+def test_torque_is_clamped_by_the_machine_itself():
+    cfg = cfg_(machine={"max_torque": 2.0}, user={"kind": "linear", "tau0": 1.0, "wmax": 5.0})
+    m = SimMachine()
+    m.connect()
+    m.arm(cfg)
+    m.activate()
+    plant = Plant(cfg.machine.inertia)
+    user = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+    for u in (50.0, -50.0, 1.5):
+        m.read()
+        m.write(u)
+        plant.sample_torque(user)
+        plant.advance(max(-2.0, min(2.0, u)), cfg.dt, user)
+        user.advance(cfg.dt)
+        assert m.last_command == max(-2.0, min(2.0, u))
+    assert m.plant is not None
+    assert m.plant.w == plant.w and m.plant.q == plant.q
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_command_is_a_latched_fault(bad):
+    m = SimMachine()
+    m.connect()
+    m.arm(cfg_())
+    m.activate()
+    with pytest.raises(MachineError, match="non-finite"):
+        m.write(bad)
+    assert m.state is MachineState.FAULT
+    assert m.last_command == 0.0
+    with pytest.raises(MachineError, match="latched fault"):
+        m.arm(cfg_())
+    m.reset()
+    assert m.state is MachineState.CONNECTED and m.fault_reason is None
+    m.arm(cfg_())
+
+
+def test_measured_controller_needs_a_torque_sensor():
+    cfg = cfg_(controller={"kind": "measured"})
+    assert MachineSpec(kind="sim").has_torque_sensor
+    spec = MachineSpec(kind="odrive", device="/dev/null")
+    assert not spec.has_torque_sensor
+    m = make_machine(spec)
+    m.state = MachineState.CONNECTED  # arming is refused before any I/O
+    with pytest.raises(ValueError, match="no torque sensor"):
+        m.arm(cfg)
+
+
+def test_machine_spec_validation():
+    with pytest.raises(ValueError, match="device"):
+        MachineSpec(kind="odrive")
+    with pytest.raises(ValueError, match="watchdog_timeout must exceed"):
+        MachineSpec(kind="odrive", device="/dev/x", watchdog_timeout=0.01, timeout=0.02)
+    with pytest.raises(ValueError):
+        MachineSpec(kind="odrive", device="/dev/x", direction=2)

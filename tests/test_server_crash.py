@@ -1,0 +1,102 @@
+"""Crashes: the server killed mid-session, the worker killed under a running server."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import httpx
+
+from tests.server_support import ServerProcess, worker_pid
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    stat = Path(f"/proc/{pid}/stat")
+    return stat.exists() and stat.read_text().split()[2] != "Z"
+
+
+def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
+    srv = ServerProcess.start(tmp_path)
+    try:
+        with srv.client("trainer") as c:
+            uid = c.post("/api/v1/users", json={"name": "Kay"}).json()["id"]
+            sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
+        time.sleep(4.0)
+        wpid = worker_pid(srv.proc.pid)
+        assert wpid is not None
+        srv.kill()  # kill -9: no shutdown, no goodbye
+        deadline = time.monotonic() + 5
+        while alive(wpid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive(wpid), "the worker must exit (zero torque) when its parent dies"
+    finally:
+        srv.kill()
+    again = ServerProcess.start(tmp_path, port=srv.port)
+    try:
+        with again.client("viewer") as c:
+            s = c.get(f"/api/v1/sessions/{sid}").json()["session"]
+            assert s["status"] == "aborted" and s["abort_reason"] == "server restarted"
+            samples = c.get(f"/api/v1/sessions/{sid}/telemetry", params={"points": 100}).json()
+            # ≥ 4 s ran; at most about 1 s may be lost to the crash
+            assert samples["samples"] >= 2500
+            assert s["duration"] >= 2.5
+        with again.client("trainer") as c:  # and the machine works again
+            new = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 2})
+            assert new.status_code == 201
+            assert again.wait_status(new.json()["id"], {"completed"}, 15)["session"]["status"] == (
+                "completed"
+            )
+    finally:
+        again.stop()
+
+
+def test_worker_killed_session_aborted_api_stays_up(tmp_path: Path) -> None:
+    with ServerProcess.start(tmp_path) as srv, srv.client("trainer") as c:
+        uid = c.post("/api/v1/users", json={"name": "Lee"}).json()["id"]
+        sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
+        time.sleep(2.0)
+        wpid = worker_pid(srv.proc.pid)
+        assert wpid is not None
+        os.kill(wpid, signal.SIGKILL)
+        body = srv.wait_status(sid, {"aborted", "completed", "stopped", "faulted"}, 10)
+        assert body["session"]["status"] == "aborted"
+        assert "worker" in body["session"]["abort_reason"]
+        health = httpx.get(srv.url + "/healthz").json()
+        assert health["status"] == "degraded" and health["worker"] == "lost"
+        assert c.get("/api/v1/machine").json()["state"] == "lost"
+        assert c.post("/api/v1/sessions", json={"user_id": uid}).status_code == 409
+        assert c.get(f"/api/v1/sessions/{sid}/telemetry").status_code == 200  # data kept
+        assert c.post("/api/v1/machine/reset").status_code == 202  # a new worker
+        assert c.get("/api/v1/machine").json()["state"] == "idle"
+        new = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 2})
+        assert new.status_code == 201
+        assert (
+            srv.wait_status(new.json()["id"], {"completed"}, 15)["session"]["status"] == "completed"
+        )
+
+
+def test_sigterm_ends_the_session_as_stopped(tmp_path: Path) -> None:
+    srv = ServerProcess.start(tmp_path)
+    with srv.client("trainer") as c:
+        uid = c.post("/api/v1/users", json={"name": "Mo"}).json()["id"]
+        sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
+    time.sleep(3.0)
+    wpid = worker_pid(srv.proc.pid)
+    assert srv.stop() in (0, -signal.SIGTERM)  # uvicorn re-raises the signal once shut down
+    assert "Application shutdown complete" in srv.log.read_text()
+    assert wpid is not None and not alive(wpid)
+    again = ServerProcess.start(tmp_path, port=srv.port)
+    try:
+        with again.client("viewer") as c:
+            s = c.get(f"/api/v1/sessions/{sid}").json()["session"]
+            assert s["status"] == "stopped"
+            n = c.get(f"/api/v1/sessions/{sid}/telemetry", params={"points": 100}).json()["samples"]
+            assert n >= 2900  # nothing lost: every sample up to the stop
+    finally:
+        again.stop()

@@ -1,0 +1,198 @@
+"""Safety behaviours of the worker: e-stop, velocity limit, passivity, parent death.
+
+Independent truths: for the sim backend, the ring's record of the torque written each cycle
+and the monotonic time each cycle started, against the moment the parent sent the e-stop;
+for the ODrive, the emulated device's own log of every torque setpoint it received and its
+axis state. Counts of cycles, not durations, so a loaded machine cannot make them flaky.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
+from sessions.simulation import run_simulation
+from sessions.worker import Worker, WorkerError, WorkerOptions
+from sessions.worker.ring import FLAG_ESTOP, INDEX
+from tests.live_support import follow, scenario, wait_for
+
+
+def test_estop_zeroes_torque_within_two_periods_and_latches():
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(scenario(duration=30.0), "estop")
+        follow(worker, until="timing")
+        sent = worker.estop()
+        got = follow(worker, reader, timeout=10)
+        d = got.data
+        mono, u = d[:, INDEX["mono"]], d[:, INDEX["u_out"]]
+        before = d[mono < sent]
+        assert np.count_nonzero(before[-200:, INDEX["u_out"]]) > 150  # it was pushing
+        after = mono >= sent
+        # cycles that started after the e-stop was sent and still wrote torque: at most 2
+        assert np.count_nonzero(u[after]) <= 2
+        assert int(d[-1, INDEX["flags"]]) & FLAG_ESTOP and u[-1] == 0.0
+        zero_at = got.of("estop")[0].zero_at
+        assert zero_at >= sent
+        assert len(d[(mono > sent) & (mono < zero_at)]) <= 2  # cycles between: at most 2
+        end = got.end
+        assert end is not None and end.status == "stopped" and end.reason == "e-stop"
+        assert end.state_after == "estopped" and worker.state == "estopped"
+        with pytest.raises(WorkerError, match="estopped"):
+            worker.start_session(scenario(), "refused")
+        head = reader.head
+        worker.reset()
+        follow(worker, until="reset")
+        assert worker.state == "idle"
+        time.sleep(0.3)
+        assert reader.head == head  # a reset runs nothing: not one cycle
+        worker.start_session(scenario(duration=0.3), "after-reset")  # an explicit start does
+        assert follow(worker).end.status == "completed"  # type: ignore[union-attr]
+        reader.close()
+
+
+def test_estop_while_idle_latches_too():
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        worker.estop()
+        follow(worker, until="estop")
+        assert worker.state == "estopped"
+        with pytest.raises(WorkerError):
+            worker.start_session(scenario(), "x")
+        worker.reset()
+        follow(worker, until="reset")
+        assert worker.state == "idle"
+
+
+def test_velocity_over_the_limit_is_a_controlled_stop():
+    # a strong person against a weak RISE controller overshoots 4 rad/s in ~75 ms
+    cfg = scenario(
+        duration=3.0,
+        machine={"max_velocity": 4.0, "max_torque": 20.0},
+        user={"tau0": 20.0, "wmax": 12.0},
+        controller={"ks": 0.1, "beta": 0.01, "alpha_r": 0.1},
+        seeker={"kind": "fixed", "bracket": [1, 2, 3], "start_delay": 0.0},
+    )
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(cfg, "overspeed")
+        got = follow(worker, reader, timeout=20)
+        reader.close()
+    end = got.end
+    assert end is not None and end.status == "aborted"
+    assert end.reason.startswith("velocity over the limit")
+    assert [e.limit for e in got.of("limit")][:1] == ["velocity"]
+    assert end.summary.duration < 0.5
+    d = got.data
+    stop = d[d[:, INDEX["phase"]] < 0]
+    assert len(stop) > 0
+    assert np.all(stop[:, INDEX["u_out"]] * stop[:, INDEX["w"]] <= 0.0)  # brakes, never drives
+    # the governor keeps braking during the stop: a person pushing 20 N·m is held within its
+    # span (full braking torque 0.5 rad/s over the limit), and the stop ends at zero torque
+    assert np.all(np.abs(stop[:, INDEX["w"]]) <= 4.0 + 0.5)
+    assert stop[-1, INDEX["u_out"]] == 0.0
+    assert len(stop) <= (0.5 + 2.0) * 1000 + 1  # ramp, then at most the grace period
+
+
+def test_passivity_breach_stops_the_session_at_the_first_breach():
+    # next to no person on the handle and a hard acceleration to 5 rad/s: during the transient
+    # the observer's τ̂ (28) runs behind, and W(t) from τ̂·w dips below -c² = -1 mJ
+    cfg = scenario(
+        duration=3.0,
+        machine={"passivity_c2": 1e-3},
+        user={"kind": "linear", "tau0": 0.01, "wmax": 0.5},
+        controller={"ks": 0.2},
+        seeker={
+            "kind": "fixed",
+            "setpoint": 5.0,
+            "bracket": [1, 2, 6],
+            "start_delay": 0.0,
+            "filter": {"pole": 30.0},
+        },
+    )
+    ref = run_simulation(cfg)
+    breach = int(np.argmax(ref.column("W") < -1e-3))
+    assert breach > 0  # the offline run breaches too, at this step
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(cfg, "passive")
+        got = follow(worker, reader, timeout=20)
+        reader.close()
+    end = got.end
+    assert end is not None and end.status == "aborted"
+    assert end.reason.startswith("passivity breached")
+    assert end.summary.passivity_min < -1e-3
+    assert "passivity" in [e.limit for e in got.of("limit")]
+    run = got.data[got.data[:, INDEX["phase"]] >= 0]
+    assert len(run) == breach + 1  # stopped on the very step W crossed -c²
+    assert run[-1, INDEX["W"]] == ref.column("W")[breach]
+    stop = got.data[got.data[:, INDEX["phase"]] < 0]
+    assert np.all(stop[:, INDEX["u_out"]] * stop[:, INDEX["w"]] <= 0.0)
+
+
+PARENT = textwrap.dedent(
+    """
+    import sys, time
+    from sessions.machine import MachineSpec
+    from sessions.worker import Worker, WorkerOptions
+    from tests.live_support import scenario
+    if __name__ == "__main__":
+        spec = MachineSpec(kind="odrive", device=sys.argv[1], timeout=0.2, watchdog_timeout=0.5)
+        worker = Worker(spec, WorkerOptions())
+        worker.start()
+        worker.start_session(scenario(duration=60.0), "orphan")
+        while not any(e.kind == "session_started" for e in worker.poll()):
+            time.sleep(0.01)
+        print(worker.pid, flush=True)
+        time.sleep(600)
+    """
+)
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] in ("Z", "X")
+    except FileNotFoundError:
+        return True
+
+
+def test_parent_death_zeroes_the_torque_and_ends_the_worker():
+    with EmulatorProcess(EmulatorConfig()) as emu:
+        parent = subprocess.Popen(
+            [sys.executable, "-c", PARENT, emu.path],
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+        )
+        try:
+            worker_pid = int(parent.stdout.readline())  # type: ignore[union-attr]
+            time.sleep(0.3)
+            assert emu.snapshot().current_state == 8
+            killed_at = time.monotonic()
+            os.kill(parent.pid, signal.SIGKILL)
+            parent.wait(10)
+            assert wait_for(lambda: _gone(worker_pid), timeout=5.0)
+            snap = emu.snapshot()
+            assert snap.applied_torque == 0.0 and snap.input_torque == 0.0
+            assert snap.current_state == 1
+            # the worker itself zeroed and idled the drive: the watchdog never had to
+            assert snap.error == 0 and snap.watchdog_tripped_at is None
+            assert not snap.watchdog_enabled
+            late = emu.torques_since(killed_at)
+            assert late and late[-1][1] == 0.0
+        finally:
+            if parent.poll() is None:
+                parent.kill()
+                parent.wait(5)

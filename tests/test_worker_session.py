@@ -1,0 +1,149 @@
+"""Sessions in the real-time worker process, through the parent's handle.
+
+Independent truth: the engine's offline simulation. The sim backend advances the plant one
+period per cycle, so a live session is the same computation as ``run_simulation`` with the
+same config, whatever the scheduling: the ring must hold exactly its telemetry, the events
+exactly its evaluations, the summary exactly what ``summarize`` gives for the same loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from sessions.config import ScenarioError
+from sessions.loop import Loop
+from sessions.machine import MachineSpec
+from sessions.machine.sim import SimMachine
+from sessions.simulation import run_simulation
+from sessions.summary import summarize
+from sessions.worker import COLUMNS, Worker, WorkerError, WorkerOptions
+from sessions.worker.ring import FLAG_STOPPING, INDEX
+from tests.live_support import follow, scenario
+
+NCH = 10  # the engine's telemetry channels come first in a ring record
+
+
+@pytest.fixture(scope="module")
+def worker():
+    with Worker(options=WorkerOptions()) as w:
+        ready = w.start()
+        assert ready is not None and ready.fault is None and ready.machine == "sim"
+        yield w
+
+
+def offline_summary(cfg):
+    m = SimMachine()
+    m.connect()
+    m.arm(cfg)
+    m.activate()
+    loop = Loop(cfg)
+    loop.begin(0.0, 0.0)
+    for _ in range(round(cfg.duration * cfg.rate)):
+        q, w, tau = m.read()
+        m.write(loop.step(q, w, tau))
+    return summarize(loop)
+
+
+def test_live_session_is_the_offline_simulation(worker):
+    cfg = scenario(duration=4.0, user={"kind": "hill", "noise": 0.03, "ripple": 0.1})
+    ref = run_simulation(cfg)
+    reader = worker.open_reader()
+    worker.start_session(cfg, "equal")
+    got = follow(worker, reader)
+    reader.close()
+    end = got.end
+    assert end is not None and end.status == "completed" and end.reason == "duration reached"
+    assert got.missed == 0
+    assert got.kinds()[0] == "session_started"
+    started = got.of("session_started")[0]
+    assert got.seq[0] == started.first_seq and got.seq[-1] == end.last_seq
+    assert np.all(np.diff(got.seq) == 1)
+    n = len(ref.telemetry)
+    run = got.data[:n]
+    np.testing.assert_array_equal(run[:, :NCH], ref.telemetry)
+    assert np.all(run[:, INDEX["phase"]] >= 0)
+    np.testing.assert_array_equal(run[:, INDEX["u_out"]], ref.column("u"))
+    evs = [(e.session_t, e.candidate, e.power) for e in got.of("evaluation")]
+    assert evs == [(e.t, e.candidate, e.power) for e in ref.evaluations]
+    assert end.summary == offline_summary(cfg)
+    assert end.timing.cycles == len(got.seq) and end.timing.rate_hz == 1000.0
+    assert worker.status().state == "idle" and worker.status().session_id is None
+
+
+def test_the_end_ramps_torque_out_and_never_drives(worker):
+    cfg = scenario(duration=1.0)
+    reader = worker.open_reader()
+    worker.start_session(cfg, "ramp")
+    got = follow(worker, reader)
+    reader.close()
+    d = got.data
+    stop = d[d[:, INDEX["phase"]] < 0]
+    opts = WorkerOptions()
+    assert len(stop) == pytest.approx(opts.stop_ramp * cfg.rate, abs=2)
+    assert np.all(stop[:, INDEX["flags"]].astype(int) & FLAG_STOPPING)
+    u, w = stop[:, INDEX["u_out"]], stop[:, INDEX["w"]]
+    assert np.all(u * w <= 0.0)  # the motor only resists during a stop
+    assert np.all(np.abs(np.diff(np.abs(u))) <= np.abs(d[1000 - 1, INDEX["u"]]) / 400)
+    assert u[-1] == 0.0
+    assert got.of("stopping")[0].reason == "duration reached"
+
+
+def test_operator_stop_ends_the_session_early(worker):
+    worker.start_session(scenario(duration=30.0), "stopme")
+    follow(worker, until="session_started")
+    follow(worker, until="timing")
+    worker.stop()
+    got = follow(worker, timeout=10)
+    end = got.end
+    assert end is not None and end.status == "stopped"
+    assert 0.5 < end.summary.duration < 10.0
+    assert end.summary.abort_reason == "stopped by the operator"
+
+
+def test_bad_requests_are_refused_where_they_are_made(worker):
+    with pytest.raises(ScenarioError, match="duration"):
+        worker.start_session({"duration": -1}, "bad")
+    with pytest.raises(ValueError, match="session_id"):
+        worker.start_session(scenario(), "")
+    worker.start_session(scenario(duration=5.0), "busy")
+    with pytest.raises(WorkerError, match=r"already|running"):
+        worker.start_session(scenario(), "second")
+    follow(worker, until="session_started")
+    with pytest.raises(WorkerError, match="running"):
+        worker.start_session(scenario(), "third")
+    worker.stop(immediate=True)
+    end = follow(worker).end
+    assert end is not None and end.status == "stopped"
+    assert worker.state == "idle"
+    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null"))
+    with pytest.raises(ValueError, match="torque sensor"):
+        odrive.start_session(scenario(controller={"kind": "measured"}), "x")
+
+
+def test_events_as_an_async_stream(worker):
+    async def consume():
+        kinds = []
+        worker.start_session(scenario(duration=0.5), "async")
+        async for ev in worker.events(interval=0.01):
+            kinds.append(ev.kind)
+            d = ev.to_dict()
+            assert d["kind"] == ev.kind
+            if ev.kind == "session_ended":
+                assert d["summary"]["duration"] == pytest.approx(0.5)
+                return kinds
+        return kinds
+
+    kinds = asyncio.run(asyncio.wait_for(consume(), 30))
+    assert kinds[0] == "session_started" and kinds[-1] == "session_ended"
+    assert "stopping" in kinds
+
+
+def test_status_is_plain_data(worker):
+    st = worker.status()
+    assert st.state == "idle" and st.machine == "sim" and st.pid == worker.pid
+    assert st.heartbeat_age is not None and st.heartbeat_age < 1.0
+    assert st.realtime is not None
+    assert worker.ring_info.columns == COLUMNS
