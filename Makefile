@@ -27,9 +27,9 @@ lint: setup
 test: setup system lint
 	$(BIN)/python -m pytest
 
-## demo: the paper's Exp. 1 reproduced in simulation (figures in out/)
+## demo: the server with a simulated machine and users; open http://127.0.0.1:8000/
 demo: setup
-	$(BIN)/ergoseek reproduce exp1 --out out
+	$(BIN)/ergoseek demo
 
 ## bench: every benchmark, one JSON object each
 bench: setup
