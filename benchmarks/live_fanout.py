@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 import websockets
-from _server import cpu_seconds, start_server
+from _server import cpu_seconds, peak_rss_mb, start_server
 
 
 def session(srv, seconds: float) -> dict:  # type: ignore[no-untyped-def]
@@ -76,6 +76,7 @@ def main() -> None:
         lat, frames = asyncio.run(fan_out(srv, args.clients, args.seconds))
         cpu1, wall1 = cpu_seconds(srv.proc.pid), time.monotonic()
         t_busy = finished_timing(srv, busy["sid"], args.seconds + 5)
+        rss = peak_rss_mb(srv.proc.pid)
     finally:
         srv.stop()
     ms = np.array(lat) * 1e3
@@ -91,6 +92,7 @@ def main() -> None:
         "missed_ratio_alone": t_alone["missed_ratio"],
         "missed_ratio_with_clients": t_busy["missed_ratio"],
         "server_cpu_share": round((cpu1 - cpu0) / (wall1 - wall0), 3),
+        "server_peak_rss_mb": rss,
         "loadavg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)],
     }
     print(json.dumps(out) if args.json else json.dumps(out, indent=2))

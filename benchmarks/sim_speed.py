@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import time
 
 from sessions.config import parse_session_config
@@ -51,6 +52,7 @@ def main() -> None:
         "realtime_factor_min": round(min(factors.values()), 1),
         "slowest": min(factors, key=factors.__getitem__),
         "us_per_step_max": round(1e6 / (1000.0 * min(factors.values())), 2),
+        "max_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "loadavg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)],
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }

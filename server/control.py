@@ -1,5 +1,5 @@
 """The web process's side of the machine: it starts sessions on the worker, and a pump (an
-asyncio task, 50 Hz) moves what the worker produces to the store and the live clients.
+asyncio task, 100 Hz) moves what the worker produces to the store and the live clients.
 
     worker ring ──► pump ──► SessionRecorder (store, committed ≤ 1 s)
                         └──► LiveHub (WebSocket clients)
@@ -53,7 +53,7 @@ from sessions.worker.ring import RingReader
 
 log = logging.getLogger("ergoseek.control")
 
-PUMP_INTERVAL = 0.02  # s
+PUMP_INTERVAL = 0.01  # s
 START_TIMEOUT = 10.0  # s for the worker to accept a session
 PHASES = {0.0: "delay", 1.0: "settling", 2.0: "measuring", 3.0: "done", -1.0: "stopping"}
 

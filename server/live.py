@@ -127,7 +127,9 @@ class LiveHub:
 async def serve_subscription(hub: LiveHub, sub: Subscription, send: Any) -> None:
     """Send a subscription's frames until cancelled: events as they come, telemetry at most
     FRAME_RATE_MAX times a second. ``send`` is the WebSocket's ``send_json``-like coroutine."""
-    interval = 1.0 / min(FRAME_RATE_MAX, max(sub.rate, 1.0))
+    # up to FRAME_RATE_MAX samples a second, each goes out as it comes (the decimation sets
+    # the pace); above it, samples are batched into FRAME_RATE_MAX frames a second
+    interval = 1.0 / FRAME_RATE_MAX if sub.rate > FRAME_RATE_MAX else 0.0
     loop = asyncio.get_running_loop()
     next_frame = loop.time()
     try:
