@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"${PASSWORD_ENV}: {exc.reason}") from None
     source = f"from ${PASSWORD_ENV}" if os.environ.get(PASSWORD_ENV) else "generated"
     shown = password if not os.environ.get(PASSWORD_ENV) else "(as set)"
-    host = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host  # noqa: S104
+    host = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
     print(
         f"ergoseek demo: open http://{host}:{settings.port}/ and log in as "
         f"'{DEMO_LOGIN}' with password {shown} ({source})",
