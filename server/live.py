@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from sessions.worker.ring import FLAG_ESTOP, FLAG_FAULT
 from sessions.worker.ring import INDEX as RING
 
 # Channels a telemetry frame carries, in the ring's column names.
@@ -78,7 +79,10 @@ class LiveHub:
         """One batch of ring records (all columns), in order; never blocks."""
         for sub in self.subscribers:
             sub.missed += missed
-            keep = seq % sub.step == 0
+            # every step-th sample, and always the ones that end in zero torque (e-stop, fault)
+            keep = (seq % sub.step == 0) | (
+                (data[:, RING["flags"]].astype(np.int64) & (FLAG_ESTOP | FLAG_FAULT)) != 0
+            )
             if not keep.any():
                 continue
             rows, s = data[keep], seq[keep]

@@ -1,0 +1,220 @@
+"""From the LiveHub to the dashboards, ~25 times a second, without ever stalling anyone.
+
+    LiveHub ──(subscription, 50 samples/s)──► Feed.run (asyncio task on the web process's loop)
+        takes the pending samples and events (O(1), no copies of the ring), and every 0.25 s
+        the machine status (which must be read on that loop), then hands them to
+    Feed.apply (one dedicated thread): the bounded live window, the seeker's progress, then
+    each dashboard view with a browser connected (viser handle updates are thread-safe).
+
+The task awaits the thread, so a slow render never piles up work: the subscription keeps at
+most its backlog (2 s) and drops the oldest samples, and the web process's loop only ever
+spends microseconds per tick here. Views without a browser are skipped entirely.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from webui.charts import SAMPLE_RATE, LiveWindow
+from webui.progress import SeekerProgressView
+
+log = logging.getLogger("ergoseek.dashboard")
+
+TICK = 0.04  # s: 25 chart frames per second
+STATUS_EVERY = 0.25  # s between machine status reads
+LOG_LINES = 8
+
+
+@dataclass(frozen=True)
+class ActiveSession:
+    session_id: int
+    user_id: int
+    cfg: Any  # sessions.config.SessionConfig (frozen)
+    target: float | None = None
+    done: bool = False
+
+
+@dataclass
+class Snapshot:
+    rows: np.ndarray
+    events: list[dict[str, Any]]
+    status: Any | None  # server.schemas.MachineOut, when read this tick
+    active: ActiveSession | None
+
+
+@dataclass
+class LiveState:
+    """What every view renders, kept by the feed thread only."""
+
+    window: LiveWindow = field(default_factory=LiveWindow)
+    window_version: int = 0
+    seeker: SeekerProgressView = field(default_factory=SeekerProgressView)
+    status: Any | None = None
+    status_version: int = 0
+    active: ActiveSession | None = None
+    last_finished: tuple[int, str] | None = None  # (session id, status)
+    log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES))
+    log_version: int = 0
+
+    @property
+    def disarmed(self) -> bool:
+        """No session and the worker not armed: the torque written is zero. (The live window
+        is sampled at 50 Hz, so the last record of a session, written with zero torque, is
+        usually not in it; the machine's state says it.)"""
+        return self.active is None and self.status is not None and not self.status.armed
+
+    def note(self, text: str) -> None:
+        self.log.appendleft(f"{time.strftime('%H:%M:%S')} {text}")
+        self.log_version += 1
+
+
+def describe_event(frame: dict[str, Any]) -> str | None:
+    """One log line for the events a trainer should see."""
+    kind = frame.get("kind")
+    if frame.get("type") == "session_finished":
+        return f"session #{frame.get('session_id')} ended: {frame.get('status')}"
+    if kind == "estop":
+        return "E-STOP: zero torque written, latched until reset"
+    if kind == "fault":
+        return f"fault: {frame.get('reason')}"
+    if kind == "limit":
+        return f"{frame.get('limit')} limit hit ({frame.get('value', 0):.3g})"
+    if kind == "stopping":
+        return f"stopping: {frame.get('reason')}"
+    if kind == "reset":
+        return "reset" + (f" failed: {frame['fault']}" if frame.get("fault") else ": cleared")
+    if kind == "lost":
+        return f"worker lost: {frame.get('reason')}"
+    if kind == "rejected":
+        return f"machine refused {frame.get('command')}: {frame.get('reason')}"
+    return None
+
+
+def _sid(active: ActiveSession | None) -> int | None:
+    return active.session_id if active is not None else None
+
+
+class Feed:
+    def __init__(
+        self,
+        runtime: Any,
+        views: list[Any],
+        *,
+        load_evaluations: Callable[[int], list[dict[str, Any]]],
+        on_finished: Callable[[int, str], None],
+    ) -> None:
+        self.runtime = runtime
+        self.views = views
+        self.load_evaluations = load_evaluations
+        self.on_finished = on_finished
+        self.state = LiveState()
+        self.tick = 0
+        self.thread = ThreadPoolExecutor(1, thread_name_prefix="ergoseek-dashboard-feed")
+        self.task: asyncio.Task[None] | None = None
+        self.subscription: Any = None
+
+    def start(self) -> None:
+        self.task = asyncio.get_running_loop().create_task(self.run(), name="ergoseek-dashboard")
+
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
+        hub = self.runtime.hub
+        sub = self.subscription = hub.subscribe(SAMPLE_RATE)
+        next_status = 0.0
+        try:
+            while True:
+                started = loop.time()
+                _, rows = sub.take()
+                events = list(sub.events)
+                sub.events.clear()
+                status = None
+                if started >= next_status:
+                    next_status = started + STATUS_EVERY
+                    with contextlib.suppress(Exception):
+                        status = self.runtime.machine_status()
+                snap = Snapshot(rows, events, status, self._active())
+                try:
+                    await loop.run_in_executor(self.thread, self.apply, snap)
+                except RuntimeError:  # the thread was shut down: we are stopping
+                    return
+                except Exception:
+                    log.exception("dashboard feed")
+                await asyncio.sleep(max(0.0, TICK - (loop.time() - started)))
+        finally:
+            hub.unsubscribe(sub)
+
+    def _active(self) -> ActiveSession | None:
+        control = self.runtime.control
+        active = control.active if control is not None else None
+        if active is None:
+            return None
+        return ActiveSession(active.db_id, active.user_id, active.cfg, active.target, active.done)
+
+    # -- the feed thread ---
+    def apply(self, snap: Snapshot) -> None:
+        st = self.state
+        if len(snap.rows):
+            st.window.extend(snap.rows)
+            st.window_version += 1
+        if snap.status is not None:
+            st.status = snap.status
+            st.status_version += 1
+        active = snap.active
+        if _sid(active) != _sid(st.active):
+            st.status_version += 1
+        st.active = active
+        if active is not None and st.seeker.session_id != active.session_id:
+            st.seeker.reset(active.session_id, active.cfg)
+            try:  # a session that was running before this dashboard saw it start
+                for ev in self.load_evaluations(active.session_id):
+                    st.seeker.add(ev)
+            except Exception:
+                log.exception("loading the evaluations of session %s", active.session_id)
+            if active.target is not None and st.seeker.evaluations:
+                st.seeker.target, st.seeker.done = active.target, active.done
+        for frame in snap.events:
+            self._event(frame)
+        self.tick += 1
+        for view in self.views:
+            if view.has_clients():
+                try:
+                    view.render(st, self.tick)
+                except Exception:
+                    log.exception("rendering a dashboard view")
+
+    def _event(self, frame: dict[str, Any]) -> None:
+        st = self.state
+        if frame.get("type") == "seeker":
+            try:
+                sid = int(frame.get("session_id") or -1)
+            except (TypeError, ValueError):
+                sid = -1
+            if sid == st.seeker.session_id:
+                st.seeker.add(frame)
+            return
+        text = describe_event(frame)
+        if text is not None:
+            st.note(text)
+        if frame.get("type") == "session_finished":
+            sid, status = int(frame["session_id"]), str(frame.get("status"))
+            st.last_finished = (sid, status)
+            st.status_version += 1
+            self.on_finished(sid, status)
+
+    def stop(self, loop: asyncio.AbstractEventLoop | None) -> None:
+        """Cancel the task (from any thread) and end the feed thread."""
+        task = self.task
+        if task is not None and loop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(task.cancel)
+        self.thread.shutdown(wait=True, cancel_futures=True)

@@ -1,0 +1,107 @@
+"""The dashboard's HTTP side: the login page at ``/``, viser's built client at ``/dashboard/``
+(logged-in accounts only; gzipped when the browser accepts it) and the proxied WebSocket at
+``/dashboard``.
+
+The viser client derives its WebSocket URL from the page's location with the trailing ``/``
+stripped, so the page at ``/dashboard/`` connects to ``/dashboard``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import gzip
+from pathlib import Path
+
+import viser
+from fastapi import APIRouter, Request, WebSocket
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+
+from server.auth import COOKIE, identify
+from webui import login_page
+from webui.proxy import dashboard_socket
+
+router = APIRouter(include_in_schema=False)
+
+CLIENT_BUILD = Path(viser.__file__).resolve().parent / "client" / "build"
+SECURITY_HEADERS = {
+    "Cache-Control": "no-store",
+    "X-Frame-Options": "DENY",  # nobody frames a page with an E-STOP
+    # connect-src: viser's client would follow ``?websocket=URL`` to any server, so a link
+    # could show a trainer a fake machine; the page may only talk to this origin.
+    "Content-Security-Policy": (
+        "frame-ancestors 'none'; base-uri 'none'; form-action 'self'; "
+        "connect-src 'self' blob: data:"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "same-origin",
+}
+TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "application/javascript",
+    ".css": "text/css; charset=utf-8",
+    ".svg": "image/svg+xml",
+    ".png": "image/png",
+    ".wasm": "application/wasm",
+    ".json": "application/json",
+    ".hdr": "application/octet-stream",
+}
+
+
+@functools.lru_cache(maxsize=16)
+def _asset(relpath: str) -> tuple[bytes, bytes, str] | None:
+    """(raw, gzipped, content type) of a file of viser's built client, or None."""
+    parts = [p for p in relpath.split("/") if p and p != "."]
+    if any(p == ".." or "\\" in p for p in parts):
+        return None
+    path = CLIENT_BUILD.joinpath(*parts) if parts else CLIENT_BUILD / "index.html"
+    if not path.is_file() or CLIENT_BUILD not in path.resolve().parents:
+        return None
+    raw = path.read_bytes()
+    kind = TYPES.get(path.suffix.lower(), "application/octet-stream")
+    return raw, gzip.compress(raw, 6), kind
+
+
+def _serve(request: Request, relpath: str) -> Response:
+    found = _asset(relpath)
+    if found is None:
+        return Response(status_code=404, headers=SECURITY_HEADERS)
+    raw, zipped, kind = found
+    headers = {**SECURITY_HEADERS, "Vary": "Accept-Encoding"}
+    if "gzip" in request.headers.get("accept-encoding", ""):
+        return Response(zipped, media_type=kind, headers={**headers, "Content-Encoding": "gzip"})
+    return Response(raw, media_type=kind, headers=headers)
+
+
+async def _account(request: Request):  # type: ignore[no-untyped-def]
+    runtime = request.app.state.runtime
+    if not request.cookies.get(COOKIE) or runtime.store is None:
+        return None
+    account, _ = await asyncio.to_thread(identify, request, runtime.store)
+    return account
+
+
+@router.get("/", response_class=HTMLResponse)
+async def login(request: Request) -> HTMLResponse:
+    account = None if "logout" in request.query_params else await _account(request)
+    who = f"{account.login} ({account.role})" if account is not None else None
+    return HTMLResponse(login_page.render(who), headers=SECURITY_HEADERS)
+
+
+@router.get("/dashboard")
+async def dashboard_no_slash() -> RedirectResponse:
+    return RedirectResponse("/dashboard/", status_code=307)
+
+
+@router.get("/dashboard/{relpath:path}")
+async def dashboard(request: Request, relpath: str) -> Response:
+    if await _account(request) is None:
+        return RedirectResponse("/", status_code=303, headers={"Cache-Control": "no-store"})
+    if request.app.state.runtime.dashboard is None:
+        return Response("the dashboard is not running", status_code=503, headers=SECURITY_HEADERS)
+    return await asyncio.to_thread(_serve, request, relpath)
+
+
+@router.websocket("/dashboard")
+async def dashboard_ws(ws: WebSocket) -> None:
+    await dashboard_socket(ws)
