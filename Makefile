@@ -33,7 +33,7 @@ demo: setup
 
 ## bench: every benchmark, one JSON object each
 bench: setup
-	@for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b --json; done
+	@for b in benchmarks/[!_]*.py; do echo "== $$b"; $(BIN)/python $$b --json; done
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -1,4 +1,5 @@
-"""Shared by the server benchmarks: a real server on a free port with a trainer account."""
+"""Shared by the server benchmarks: a real server on a free port with one account per role
+(the tests' harness), and the process figures they read."""
 
 from __future__ import annotations
 
@@ -9,24 +10,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.server_support import ServerProcess  # noqa: E402
+from server.harness import ServerProcess, cpu_seconds, peak_rss_mb  # noqa: E402
+from tests.server_support import start_server as _start  # noqa: E402
+
+__all__ = ["ServerProcess", "cpu_seconds", "peak_rss_mb", "start_server"]
 
 
 def start_server(*args: str) -> ServerProcess:
-    return ServerProcess.start(Path(tempfile.mkdtemp(prefix="ergoseek-bench-")), *args)
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of one process (all its threads, not its children)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    import os
-
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def peak_rss_mb(pid: int) -> float:
-    """Peak resident memory of a process (VmHWM), MiB."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return round(int(line.split()[1]) / 1024, 1)
-    return float("nan")
+    return _start(Path(tempfile.mkdtemp(prefix="ergoseek-bench-")), *args)

@@ -36,14 +36,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from webui.harness import (
-    TRAINER,
-    VIEWPORT,
-    DemoServer,
-    chromium,
-    cpu_seconds,
-    login,
-)
+from server.harness import cpu_seconds
+from webui.harness import TRAINER, VIEWPORT, DemoServer, chromium, login
 
 ADA = 1  # the first demo user: a Hill user, τ0 = 3 N·m, wmax = 10 rad/s
 

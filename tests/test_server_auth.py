@@ -7,7 +7,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from tests.server_support import PASSWORDS, ServerProcess
+from tests.server_support import PASSWORDS, ServerProcess, start_server
 
 # (method, path, body, least role); {user} and {acc} are filled in
 ROUTES: list[tuple[str, str, dict | None, str]] = [
@@ -33,7 +33,7 @@ RANK = {"viewer": 0, "trainer": 1, "admin": 2}
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:
-    with ServerProcess.start(
+    with start_server(
         tmp_path_factory.mktemp("auth"), env={"ERGOSEEK_LOGIN_ATTEMPTS": "3"}
     ) as srv:
         yield srv

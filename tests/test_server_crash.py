@@ -9,7 +9,7 @@ from pathlib import Path
 
 import httpx
 
-from tests.server_support import ServerProcess, worker_pid
+from tests.server_support import start_server, worker_pid
 
 
 def alive(pid: int) -> bool:
@@ -22,7 +22,7 @@ def alive(pid: int) -> bool:
 
 
 def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
-    srv = ServerProcess.start(tmp_path)
+    srv = start_server(tmp_path)
     try:
         with srv.client("trainer") as c:
             uid = c.post("/api/v1/users", json={"name": "Kay"}).json()["id"]
@@ -37,7 +37,7 @@ def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
         assert not alive(wpid), "the worker must exit (zero torque) when its parent dies"
     finally:
         srv.kill()
-    again = ServerProcess.start(tmp_path, port=srv.port)
+    again = start_server(tmp_path, port=srv.port)
     try:
         with again.client("viewer") as c:
             s = c.get(f"/api/v1/sessions/{sid}").json()["session"]
@@ -57,7 +57,7 @@ def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
 
 
 def test_worker_killed_session_aborted_api_stays_up(tmp_path: Path) -> None:
-    with ServerProcess.start(tmp_path) as srv, srv.client("trainer") as c:
+    with start_server(tmp_path) as srv, srv.client("trainer") as c:
         uid = c.post("/api/v1/users", json={"name": "Lee"}).json()["id"]
         sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
         time.sleep(2.0)
@@ -82,16 +82,16 @@ def test_worker_killed_session_aborted_api_stays_up(tmp_path: Path) -> None:
 
 
 def test_sigterm_ends_the_session_as_stopped(tmp_path: Path) -> None:
-    srv = ServerProcess.start(tmp_path)
+    srv = start_server(tmp_path)
     with srv.client("trainer") as c:
         uid = c.post("/api/v1/users", json={"name": "Mo"}).json()["id"]
         sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
     time.sleep(3.0)
     wpid = worker_pid(srv.proc.pid)
     assert srv.stop() in (0, -signal.SIGTERM)  # uvicorn re-raises the signal once shut down
-    assert "Application shutdown complete" in srv.log.read_text()
+    assert "Application shutdown complete" in srv.log()
     assert wpid is not None and not alive(wpid)
-    again = ServerProcess.start(tmp_path, port=srv.port)
+    again = start_server(tmp_path, port=srv.port)
     try:
         with again.client("viewer") as c:
             s = c.get(f"/api/v1/sessions/{sid}").json()["session"]

@@ -13,7 +13,7 @@ import schemathesis
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from tests.server_support import ServerProcess
+from tests.server_support import ServerProcess, start_server
 
 EXAMPLES = 15
 STATUS: list[int] = []
@@ -21,7 +21,7 @@ STATUS: list[int] = []
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:
-    with ServerProcess.start(tmp_path_factory.mktemp("schema")) as srv:
+    with start_server(tmp_path_factory.mktemp("schema")) as srv:
         with srv.client("admin") as c:  # something to find behind the ids
             uid = c.post("/api/v1/users", json={"name": "Schema"}).json()["id"]
             c.post("/api/v1/sessions", json={"user_id": uid, "duration": 1.0})

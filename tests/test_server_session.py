@@ -11,14 +11,14 @@ from websockets.sync.client import connect
 
 from sessions.config import UserConfig
 from sessions.users import SimulatedUser
-from tests.server_support import ServerProcess
+from tests.server_support import ServerProcess, start_server
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:
-    with ServerProcess.start(tmp_path_factory.mktemp("srv")) as srv:
+    with start_server(tmp_path_factory.mktemp("srv")) as srv:
         yield srv
 
 
@@ -159,8 +159,8 @@ def test_a_session_through_the_emulated_odrive(tmp_path: Path) -> None:
         "ERGOSEEK_RATE": "500",
     }
     with (
-        ServerProcess.start(tmp_path, "--machine", "odrive-emulator", env=env) as srv,
-        srv.client() as c,
+        start_server(tmp_path, "--machine", "odrive-emulator", env=env) as srv,
+        srv.client("trainer") as c,
     ):
         assert c.get("/api/v1/machine").json()["backend"] == "odrive-emulator"
         uid = c.post("/api/v1/users", json={"name": "Pty"}).json()["id"]
