@@ -51,7 +51,7 @@ class PerturbationSeeker(Seeker):
     kind = "perturbation"
     __slots__ = (
         "filter", "theta", "kappa", "eta", "t_es", "t_fade", "period", "period_start",
-        "theta_marks", "lo", "hi", "_dtheta", "_ddtheta", "_dither",
+        "theta_marks", "lo", "hi", "_dtheta", "_ddtheta", "_dither", "_gains",
     )  # fmt: skip
 
     def __init__(self, cfg: SeekerConfig, dt: float, max_velocity: float) -> None:
@@ -64,6 +64,8 @@ class PerturbationSeeker(Seeker):
         self.t_es = math.inf
         self.t_fade = math.inf
         self.period = 2.0 * math.pi / cfg.omega
+        # (14)'s constants, read once: tell() runs every period
+        self._gains = (cfg.alpha0, cfg.alpha0 * cfg.kf1, cfg.kf2, cfg.alpha_f, cfg.saturation)
         self.period_start = 0.0
         self.theta_marks: list[float] = []
         self._dtheta = 0.0
@@ -112,44 +114,61 @@ class PerturbationSeeker(Seeker):
                 self.wd, self.ad, self.jd = f.wd, f.ad, f.jd
                 return None
         ev = None
-        if self.phase == MEASURING:
+        phase = self.phase
+        if phase == MEASURING:
             ev = self._adapt(t, p)
+            phase = self.phase
         # reference at t + dt
         tn = t + dt
-        a, da, dda = self.amplitude(tn)
         w = cfg.omega
+        if self.t_es + self.period <= tn < self.t_fade:  # full amplitude: A' = A'' = 0
+            a = cfg.amplitude
+            x = w * (tn - self.t_es)
+            s = math.sin(x)
+            awc = a * w * math.cos(x)
+            self._dither = a * s
+            self.wd = self.theta + a * s
+            self.ad = self._dtheta + awc
+            self.jd = self._ddtheta - a * w * w * s
+            self.target = self.theta
+            return ev
+        a, da, dda = self.amplitude(tn)
         s, c = math.sin(w * (tn - self.t_es)), math.cos(w * (tn - self.t_es))
         self._dither = a * s
         self.wd = self.theta + a * s
         self.ad = self._dtheta + da * s + a * w * c
         self.jd = self._ddtheta + dda * s + 2.0 * da * w * c - a * w * w * s
         self.target = self.theta
-        if self.phase == DONE:
+        if phase == DONE:
             self.ad = da * s + a * w * c
             self.jd = dda * s + 2.0 * da * w * c - a * w * w * s
         return ev
 
     def _adapt(self, t: float, p: float) -> Evaluation | None:
-        cfg, dt = self.cfg, self.dt
+        dt = self.dt
+        alpha0, alpha0_kf1, kf2, alpha_f, big = self._gains
         dither = self._dither
-        sp = self.sat(p)
-        dkappa = -cfg.alpha0 * self.kappa + cfg.alpha0 * cfg.kf1 * (sp - self.eta) * dither
-        dtheta = -cfg.alpha_f * self.theta + self.kappa
-        self.eta += dt * cfg.kf2 * (sp - self.eta)
-        self.kappa += dt * dkappa
+        sp = big * math.tanh(p / big)
+        kappa = self.kappa
+        dkappa = -alpha0 * kappa + alpha0_kf1 * (sp - self.eta) * dither  # (14)
+        dtheta = -alpha_f * self.theta + kappa  # (14)
+        self.eta += dt * kf2 * (sp - self.eta)  # (14)
+        kappa += dt * dkappa
         theta = self.theta + dt * dtheta
         if theta <= self.lo or theta >= self.hi:  # projection onto the bracket
             theta = min(max(theta, self.lo), self.hi)
-            if (theta <= self.lo and self.kappa < 0) or (theta >= self.hi and self.kappa > 0):
-                self.kappa = 0.0
+            if (theta <= self.lo and kappa < 0) or (theta >= self.hi and kappa > 0):
+                kappa = 0.0
                 dkappa = 0.0
             dtheta = 0.0
+        self.kappa = kappa
         self.theta = theta
         self._dtheta = dtheta
-        self._ddtheta = -cfg.alpha_f * dtheta + dkappa
+        self._ddtheta = -alpha_f * dtheta + dkappa
         if t - self.period_start < self.period:
             return None
         # one dither period done: record it, test convergence
+        cfg = self.cfg
         self.period_start += self.period
         ev = Evaluation(t, self.theta, self.eta, 0.0)
         self.evaluations.append(ev)
