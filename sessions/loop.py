@@ -24,7 +24,7 @@ from sessions.telemetry import INDEX, WIDTH
 class Loop:
     __slots__ = (
         "cfg", "dt", "k", "controller", "seeker", "limits", "passivity", "rho", "surrogate",
-        "row", "flags", "evaluation", "peak_power", "power_sum",
+        "row", "flags", "evaluation", "peak_power", "power_sum", "_calls",
     )  # fmt: skip
 
     def __init__(self, cfg: SessionConfig, *, as_printed: bool = False) -> None:
@@ -43,6 +43,11 @@ class Loop:
         self.evaluation: Evaluation | None = None
         self.peak_power = 0.0
         self.power_sum = 0.0
+        # bound once: step() runs every period
+        self._calls = (
+            self.controller.command, self.limits.apply, self.controller.commit,
+            self.passivity.add, self.seeker.tell,
+        )  # fmt: skip
 
     def begin(self, q0: float, w0: float) -> None:
         """Start at the machine's current state: the reference starts at w0, u(t0) = 0 for RISE."""
@@ -55,24 +60,23 @@ class Loop:
         """One period: the measured state in, the motor torque to apply out."""
         dt = self.dt
         t = self.k * dt
+        command, apply, commit, add_work, tell = self._calls
         seeker = self.seeker
         wd = seeker.wd
         ad = seeker.ad
         e = w - wd  # (3)
-        ctrl = self.controller
-        u_cmd = ctrl.command(e, ad, tau_measured)
-        limits = self.limits
-        u = limits.apply(u_cmd, w)
-        tau = ctrl.commit(e, ad, tau_measured, u, u_cmd, dt)
+        u_cmd = command(e, ad, tau_measured)
+        u = apply(u_cmd, w)
+        tau = commit(e, ad, tau_measured, u, u_cmd, dt)
         p = surrogate_power(wd) if self.surrogate else modified_power(tau, wd, self.rho)
-        work = self.passivity.add(tau, w, dt)
+        work = add_work(tau, w, dt)
         pm = tau * w
         self.power_sum += pm
         if pm > self.peak_power:
             self.peak_power = pm
-        self.evaluation = seeker.tell(t, q, p, e)
+        self.evaluation = tell(t, q, p, e)
         self.row = (t, q, w, wd, ad, u, tau, p, work, seeker.target)
-        self.flags = limits.flags
+        self.flags = self.limits.flags
         self.k += 1
         return u
 
