@@ -8,8 +8,10 @@ hard bounds [γ1, γ3]:
    safer probed slower), then step on in the uphill direction, the stride growing by the
    golden ratio while the power keeps rising, until a point is worse than the best by more
    than k standard errors of the difference (noise alone does not close a bracket) or a bound
-   is reached. Every probe stays near the last good one: a person spends the search close to
-   their best power.
+   is reached. As in mnbrak, a parabola guides the stride: once the three best points are
+   concave beyond the noise, the next probe goes no further than their vertex (and at least h
+   past the current point, to see the descent). Every probe stays near the last good one: a
+   person spends the search close to their best power.
 2. **Brent's localmin** (Algorithms for Minimization without Derivatives, 1973, ch. 5) on -p
    inside that bracket: parabolic interpolation through the three best points when the step is
    acceptable, a golden-section step otherwise, never a step shorter than tol1 (so no point is
@@ -30,7 +32,7 @@ import math
 
 from sessions.seekers.base import Evaluation, FilteredSeeker, Plan
 from sessions.seekers.fit import final_estimate, rms_stderr
-from sessions.seekers.parabolic import curvature
+from sessions.seekers.parabolic import curvature, parabola_vertex
 
 GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))  # 0.381966…, the golden-section fraction
 PHI = 0.5 * (1.0 + math.sqrt(5.0))  # 1.618…, the bracketing growth
@@ -40,21 +42,42 @@ class BrentSeeker(FilteredSeeker):
     kind = "brent"
     __slots__ = ("noise_tol",)
 
+    def _concave(self, pts: list[tuple[float, float]]) -> tuple[float, float] | None:
+        """(curvature, σ) of three distinct points when they are concave by more than two
+        standard errors of the curvature, else None (a curvature lost in the noise)."""
+        if len({g for g, _ in pts}) != 3:
+            return None
+        (g1, p1), (g2, p2), (g3, p3) = sorted(pts)
+        c = curvature(g1, p1, g2, p2, g3, p3)
+        # c is linear in the p's: c = Σ wᵢ pᵢ, so its standard error is σ·sqrt(Σ wᵢ²).
+        w1 = 1.0 / ((g2 - g1) * (g3 - g1))
+        w3 = 1.0 / ((g3 - g2) * (g3 - g1))
+        sigma = rms_stderr(self.evaluations)
+        c_err = sigma * math.sqrt(w1 * w1 + (w1 + w3) ** 2 + w3 * w3)
+        return (c, sigma) if c < -2.0 * c_err else None
+
     def _tol(self, pts: list[tuple[float, float]]) -> float:
         """tol1: the minimum step, widened to the noise resolution near the best point."""
         cfg = self.cfg
-        if cfg.noise_k > 0.0 and len({g for g, _ in pts}) == 3:
-            (g1, p1), (g2, p2), (g3, p3) = sorted(pts)
-            c = curvature(g1, p1, g2, p2, g3, p3)
-            # c is linear in the p's: c = Σ wᵢ pᵢ, so its standard error is σ·sqrt(Σ wᵢ²).
-            # A curvature lost in the noise says nothing about δn: keep the last estimate.
-            w1 = 1.0 / ((g2 - g1) * (g3 - g1))
-            w3 = 1.0 / ((g3 - g2) * (g3 - g1))
-            sigma = rms_stderr(self.evaluations)
-            c_err = sigma * math.sqrt(w1 * w1 + (w1 + w3) ** 2 + w3 * w3)
-            if c < -2.0 * c_err:
+        if cfg.noise_k > 0.0:
+            concave = self._concave(pts)
+            if concave is not None:  # else keep the last estimate
+                c, sigma = concave
                 self.noise_tol = math.sqrt(cfg.noise_k * sigma / -c)
         return max(cfg.min_step, self.noise_tol)
+
+    def _stride(self, anchor: float, direction: float, step: float, h: float) -> float:
+        """The next bracketing stride: ``step``, cut to the vertex of the three best points
+        when they show a maximum (but at least ``h``)."""
+        top = sorted(self.evaluations, key=lambda m: -m.power)[:3]
+        pts = [(m.candidate, m.power) for m in top]
+        if len(pts) < 3 or self._concave(pts) is None:
+            return step
+        (g1, p1), (g2, p2), (g3, p3) = sorted(pts)
+        v = parabola_vertex(g1, p1, g2, p2, g3, p3)
+        if v is None:
+            return step
+        return min(step, max(h, (v - anchor) * direction))
 
     def _final(self, best: float) -> float:
         return final_estimate(self.evaluations, self.cfg.bracket[0], self.cfg.bracket[2], best)
@@ -79,7 +102,9 @@ class BrentSeeker(FilteredSeeker):
             anchor, direction = start, math.copysign(1.0, start.candidate - probe.candidate)
         step = h
         while len(self.evaluations) < budget:
-            c = clamp(anchor.candidate + direction * step)
+            c = clamp(
+                anchor.candidate + direction * self._stride(anchor.candidate, direction, step, h)
+            )
             if any(abs(c - ev.candidate) < 0.5 * cfg.min_step for ev in self.evaluations):
                 break  # a bound, or a point already known, closes the bracket
             ev: Evaluation = yield c
