@@ -33,9 +33,7 @@ RANK = {"viewer": 0, "trainer": 1, "admin": 2}
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:
-    with start_server(
-        tmp_path_factory.mktemp("auth"), env={"ERGOSEEK_LOGIN_ATTEMPTS": "3"}
-    ) as srv:
+    with start_server(tmp_path_factory.mktemp("auth"), env={"ERGOSEEK_LOGIN_ATTEMPTS": "3"}) as srv:
         yield srv
 
 
