@@ -113,3 +113,16 @@ def test_parabolic_drive_finds_the_surrogate_optimum_in_four_evaluations() -> No
     assert found == pytest.approx(3.0, abs=1e-9)
     assert [round(ev.candidate, 9) for ev in seeker.evaluations] == [1.0, 2.5, 4.0, 3.0]
     assert math.isclose(seeker.progress().best.power, 3.0)
+
+
+def test_brent_bracketing_does_not_stride_past_a_visible_peak() -> None:
+    # The surrogate (31), p = 2w(1 - w/6), peak at 3, searched from 1.5 (h = 5 % of [1, 5] =
+    # 0.2). Once three points show the curvature, the stride stops at their vertex, then goes
+    # h beyond to see the descent: no probe past w* + h. Golden growth alone (1.7, 1.9, 2.22,
+    # 2.75, 3.59, …) strides on past the peak.
+    cfg = SeekerConfig(kind="brent", bracket=(1.0, 1.5, 5.0))
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    found = seeker.drive(lambda w: 2.0 * w * (1.0 - w / 6.0))
+    candidates = [ev.candidate for ev in seeker.evaluations]
+    assert max(candidates) <= 3.0 + 0.2 + 1e-9
+    assert abs(found - 3.0) <= cfg.min_step
