@@ -55,6 +55,7 @@ log = logging.getLogger("ergoseek.control")
 
 PUMP_INTERVAL = 0.01  # s
 START_TIMEOUT = 10.0  # s for the worker to accept a session
+EARLY_ROWS_MAX = 100_000  # ring rows kept while waiting for SessionStarted (100 s at 1 kHz)
 PHASES = {0.0: "delay", 1.0: "settling", 2.0: "measuring", 3.0: "done", -1.0: "stopping"}
 
 
@@ -85,6 +86,10 @@ class Active:
     done: bool = False
     evaluations: int = 0
     last_row: np.ndarray | None = None
+    # Ring rows read before the worker's SessionStarted event was: the loop may run a few
+    # periods before the pump sees the event; they are recorded once it does.
+    early: list[np.ndarray] = field(default_factory=list)
+    early_rows: int = 0
 
 
 def default_bracket(v: float | None, vmax: float) -> tuple[float, float, float] | None:
@@ -300,15 +305,23 @@ class Control:
                 return
             self.hub.publish_telemetry(batch.seq, batch.data, batch.missed)
             active = self.active
-            if active is None or active.worker_session is None:
+            if active is None:
                 continue
-            mine = batch.data[batch.data[:, RING["session"]] == active.worker_session]
-            if len(mine):
-                try:
-                    active.recorder.add_rows(mine[:, :WIDTH])
-                except StoreValueError as exc:  # keep the session going; say what was refused
-                    log.warning("session %s: telemetry refused (%s)", active.db_id, exc)
-                active.last_row = mine[-1]
+            if active.worker_session is None:
+                if active.early_rows < EARLY_ROWS_MAX:
+                    active.early.append(batch.data.copy())
+                    active.early_rows += len(batch.data)
+                continue
+            self._record(active, batch.data)
+
+    def _record(self, active: Active, rows: np.ndarray) -> None:
+        mine = rows[rows[:, RING["session"]] == active.worker_session]
+        if len(mine):
+            try:
+                active.recorder.add_rows(mine[:, :WIDTH])
+            except StoreValueError as exc:  # keep the session going; say what was refused
+                log.warning("session %s: telemetry refused (%s)", active.db_id, exc)
+            active.last_row = mine[-1]
 
     async def _handle(self, ev: Event) -> None:
         active = self.active
@@ -316,6 +329,9 @@ class Control:
         if isinstance(ev, SessionStarted):
             if active is not None and ev.session_id == str(active.db_id):
                 active.worker_session = ev.session
+                for rows in active.early:
+                    self._record(active, rows)
+                active.early.clear()
                 active.started.set()
                 frame["db_session_id"] = active.db_id
         elif isinstance(ev, Rejected):
