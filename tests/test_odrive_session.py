@@ -21,6 +21,7 @@ import os
 import signal
 import time
 
+import numpy as np
 import pytest
 
 from sessions.machine import MachineSpec
@@ -71,11 +72,16 @@ def test_seeking_through_the_odrive_reaches_the_simulated_optimum(rig):
     assert live is not None
     evs = [(round(e.candidate, 3), round(e.power, 4)) for e in got.of("evaluation")]
     why = f"live {live:.4f}, offline {offline:.4f}, live evaluations {evs}, {end.timing}"
-    assert abs(live - offline) < cfg.seeker.threshold, why
+    # The same optimum to within what the search can tell apart: both inside the band where
+    # the user's true power is ≥ 99 % of p*, and no further apart than half its width. (Closer
+    # than that is chance: on a loaded VM the link skips periods, which adds measurement noise.)
     user = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
     _, p_star = user.optimum()
-    assert user.true_power(live) / p_star >= 0.99
+    grid = np.linspace(0.5, 9.5, 9001)
+    band = grid[[user.true_power(w) / p_star >= 0.99 for w in grid]]
+    assert user.true_power(live) / p_star >= 0.99, why
     assert user.true_power(offline) / p_star >= 0.99
+    assert abs(live - offline) <= 0.5 * (band[-1] - band[0]), why
     snap = emu.snapshot()
     assert snap.current_state == 1 and snap.applied_torque == 0.0 and snap.error == 0
     assert not snap.watchdog_enabled
