@@ -180,17 +180,11 @@ def _errors(app: FastAPI) -> None:
     async def _not_found(_: Request, exc: NotFoundError) -> JSONResponse:
         return problem(404, str(exc))
 
-    @app.exception_handler(ConflictError)
-    async def _conflict(_: Request, exc: ConflictError) -> JSONResponse:
+    async def _conflict(_: Request, exc: Exception) -> JSONResponse:
         return problem(409, str(exc))
 
-    @app.exception_handler(BusyError)
-    async def _busy(_: Request, exc: BusyError) -> JSONResponse:
-        return problem(409, str(exc))
-
-    @app.exception_handler(WorkerError)
-    async def _worker(_: Request, exc: WorkerError) -> JSONResponse:
-        return problem(409, str(exc))
+    for conflict in (ConflictError, BusyError, WorkerError):  # running, latched, worker down
+        app.add_exception_handler(conflict, _conflict)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:

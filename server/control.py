@@ -89,7 +89,6 @@ class Active:
     # Ring rows read before the worker's SessionStarted event was: the loop may run a few
     # periods before the pump sees the event; they are recorded once it does.
     early: list[np.ndarray] = field(default_factory=list)
-    early_rows: int = 0
 
 
 def default_bracket(v: float | None, vmax: float) -> tuple[float, float, float] | None:
@@ -308,9 +307,8 @@ class Control:
             if active is None:
                 continue
             if active.worker_session is None:
-                if active.early_rows < EARLY_ROWS_MAX:
+                if sum(map(len, active.early)) < EARLY_ROWS_MAX:
                     active.early.append(batch.data.copy())
-                    active.early_rows += len(batch.data)
                 continue
             self._record(active, batch.data)
 

@@ -65,7 +65,7 @@ class PerturbationSeeker(Seeker):
         self.t_fade = math.inf
         self.period = 2.0 * math.pi / cfg.omega
         # (14)'s constants, read once: tell() runs every period
-        self._gains = (cfg.alpha0, cfg.alpha0 * cfg.kf1, cfg.kf2, cfg.alpha_f, cfg.saturation)
+        self._gains = (cfg.alpha0, cfg.alpha0 * cfg.kf1, cfg.kf2, cfg.alpha_f)
         self.period_start = 0.0
         self.theta_marks: list[float] = []
         self._dtheta = 0.0
@@ -146,9 +146,9 @@ class PerturbationSeeker(Seeker):
 
     def _adapt(self, t: float, p: float) -> Evaluation | None:
         dt = self.dt
-        alpha0, alpha0_kf1, kf2, alpha_f, big = self._gains
+        alpha0, alpha0_kf1, kf2, alpha_f = self._gains
         dither = self._dither
-        sp = big * math.tanh(p / big)
+        sp = self.sat(p)
         kappa = self.kappa
         dkappa = -alpha0 * kappa + alpha0_kf1 * (sp - self.eta) * dither  # (14)
         dtheta = -alpha_f * self.theta + kappa  # (14)
