@@ -14,7 +14,7 @@ passivity integral (5) exactly, independently of what the controller estimates.
 
 from __future__ import annotations
 
-from sessions.users import SimulatedUser
+from sessions.people import SimulatedUser
 
 
 class Plant:

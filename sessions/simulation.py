@@ -15,10 +15,10 @@ import numpy as np
 
 from sessions.config import SessionConfig
 from sessions.loop import Loop
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.seekers import Evaluation, SeekerProgress
 from sessions.telemetry import INDEX, WIDTH, csv_header
-from sessions.users import SimulatedUser
 
 
 @dataclass

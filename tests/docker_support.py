@@ -1,5 +1,5 @@
 """A Docker engine of the test suite's own, a Debian base image made without a registry, and
-the project's image built on it — for ``tests/test_docker_smoke.py``.
+the project's image built on it — for ``tests/docker/test_smoke.py``.
 
 No image registry is reachable from the machines this suite runs on, so nothing is pulled:
 

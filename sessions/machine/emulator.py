@@ -66,8 +66,8 @@ from sessions.machine.protocol import (
     MAX_LINE,
     checksum,
 )
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
-from sessions.users import SimulatedUser
 
 AXIS_COUNT = 2
 FIRMWARE = (0, 5, 6)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from sessions.config import SessionConfig
 from sessions.machine.base import Machine
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
-from sessions.users import SimulatedUser
 
 
 class SimMachine(Machine):

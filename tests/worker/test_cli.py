@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # as the console script runs it (``python -m server.cli`` would load the module twice, as
 # __main__ and as server.cli, and UsageError would not be the class main() catches)
 CLI = [sys.executable, "-c", "import sys; from server.cli import main; sys.exit(main())"]

@@ -21,9 +21,7 @@ from sessions.store.database import sqlite_path
 from tests.store_data import FAST_HASHER, telemetry
 from tests.store_writer import evaluation
 
-pytest_plugins = ["tests.store_support"]
-
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 LOSS = 1.0  # at most this much data (seconds) may be lost
 
 

@@ -16,9 +16,9 @@ from sessions.config import parse_session_config
 from sessions.loop import Loop
 from sessions.machine import MachineError, MachineSpec, MachineState, make_machine
 from sessions.machine.sim import SimMachine
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.simulation import run_simulation
-from sessions.users import SimulatedUser
 
 
 def cfg_(**over):

@@ -27,8 +27,8 @@ import pytest
 from sessions.machine import MachineSpec
 from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
 from sessions.machine.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+from sessions.people import SimulatedUser
 from sessions.simulation import run_simulation
-from sessions.users import SimulatedUser
 from sessions.worker import Worker, WorkerOptions
 from tests.live_support import follow, scenario, wait_for
 

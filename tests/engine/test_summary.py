@@ -9,10 +9,10 @@ from pydantic import ValidationError
 
 from sessions.config import parse_session_config
 from sessions.loop import Loop
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.simulation import run_simulation
 from sessions.summary import SessionSummary, summarize
-from sessions.users import SimulatedUser
 
 
 def test_summary_of_a_simulated_session_matches_its_record() -> None:

@@ -18,8 +18,6 @@ from sessions.store.timeseries import CHUNK_SECONDS
 from sessions.telemetry import INDEX, NAMES, WIDTH, csv_header
 from tests.store_data import telemetry
 
-pytest_plugins = ["tests.store_support"]
-
 CFG = parse_session_config({"duration": 600.0})
 
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from sessions.config import UserConfig
 from sessions.objective import surrogate_power
-from sessions.users import SimulatedUser
+from sessions.people import SimulatedUser
 
 
 def make(**kw: object) -> SimulatedUser:

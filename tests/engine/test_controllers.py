@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 from sessions.config import UserConfig, parse_session_config
 from sessions.controllers import MeasuredTorqueController, RiseController
 from sessions.loop import Loop
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.simulation import run_simulation
-from sessions.users import SimulatedUser
 
 
 @pytest.mark.parametrize("kind", ["hill", "linear"])

@@ -1,4 +1,5 @@
-"""Simulated users: the torque τ(q, w, t) a person applies to the handle.
+"""Simulated people, the users a session runs against: the torque τ(q, w, t) a person
+applies to the handle.
 
 A user knows its own truth, so a session can be scored: the true modified power
 p(w) = τ̄(w)·w^ρ (4) with τ̄ the torque without noise or ripple (both average out), its

@@ -22,8 +22,6 @@ from sessions.store import (
 from sessions.summary import SessionSummary
 from tests.store_data import telemetry
 
-pytest_plugins = ["tests.store_support"]
-
 CFG = parse_session_config({"duration": 30.0, "seeker": {"kind": "parabolic"}})
 SUMMARY = SessionSummary(
     optimum_w=3.1,

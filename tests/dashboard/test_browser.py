@@ -43,7 +43,7 @@ from webui.harness import (
     text_field,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCREENSHOT = ROOT / "docs" / "img" / "dashboard.png"
 VIEWER, VIEWER_PASSWORD = "watcher", "viewer-password-1"
 SUBPROTOCOL = f"viser-v{viser.__version__}"

@@ -7,8 +7,8 @@ import math
 import pytest
 
 from sessions.config import UserConfig
+from sessions.people import SimulatedUser
 from sessions.plant import Plant
-from sessions.users import SimulatedUser
 
 
 def linear_user(tau0: float = 2.0, wmax: float = 6.0) -> SimulatedUser:

@@ -18,8 +18,6 @@ from sessions.store.migrate import MIGRATIONS, head_revision
 from sessions.store.models import Base
 from tests.store_data import FAST_HASHER
 
-pytest_plugins = ["tests.store_support"]
-
 TABLES = {
     "accounts", "users", "sessions", "seeker_evaluations", "setpoints", "telemetry_chunks",
     "events", "auth_tokens",

@@ -10,7 +10,7 @@ import pytest
 from websockets.sync.client import connect
 
 from sessions.config import UserConfig
-from sessions.users import SimulatedUser
+from sessions.people import SimulatedUser
 from tests.server_support import ServerProcess, start_server
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}

@@ -10,8 +10,6 @@ from sessions.config import UserConfig
 from sessions.store import Store, StoreValueError
 from sessions.store.models import utcnow
 
-pytest_plugins = ["tests.store_support"]
-
 
 def test_a_token_resolves_until_revoked_or_expired(store: Store) -> None:
     acc = store.accounts.create("coach", "correct horse", "trainer")

@@ -1,7 +1,7 @@
 """Shared by the store tests: a real PostgreSQL server started once per test process (Debian's
 ``postgresql`` binaries, ``initdb`` + ``pg_ctl`` in a temporary directory, listening on a
 private Unix socket), and fixtures that give each test a fresh database on SQLite and on
-PostgreSQL. Test modules load it with ``pytest_plugins = ["tests.store_support"]``.
+PostgreSQL. It is the conftest of the store tests.
 
 Set ``ERGOSEEK_TEST_POSTGRES_URL`` to use an existing server instead (each test creates its
 own database there). When PostgreSQL cannot be started, the PostgreSQL tests fail under CI
