@@ -15,6 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from sessions import stability
+
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -147,6 +149,22 @@ class SessionConfig(StrictModel):
             )
         if self.seeker.setpoint is not None and self.seeker.setpoint >= self.machine.max_velocity:
             raise ValueError("seeker.setpoint: must be below machine.max_velocity")
+        if self.seeker.kind == "perturbation" and top + self.seeker.amplitude >= (
+            self.machine.max_velocity
+        ):  # θ is projected onto the bracket; the dither rides on it
+            raise ValueError(
+                f"seeker.amplitude: γ3 + ae = {top + self.seeker.amplitude:g} must be below "
+                f"machine.max_velocity = {self.machine.max_velocity}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _holdable(self) -> SessionConfig:
+        """Gains and a reference the discrete loop can hold at this rate and inertia: the
+        bounds of :mod:`sessions.stability`, checked for every entry point (TOML, REST, UI)."""
+        problem = stability.violation(self)
+        if problem is not None:
+            raise ValueError(problem)
         return self
 
     @property
