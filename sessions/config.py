@@ -58,13 +58,17 @@ class UserConfig(StrictModel):
 
 
 class ControllerConfig(StrictModel):
-    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise")."""
+    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise").
+
+    Their upper bounds depend on the loop rate and the inertia, so SessionConfig checks them
+    (sessions/stability.py): k·dt/J ≤ 1; (ks + 1)·dt/J ≤ 2/(2 − αr·dt); αr·dt ≤ ½; β's
+    sign-integral ripple within 1/20 of the torque limit."""
 
     kind: Literal["rise", "measured"] = "rise"
-    ks: Positive = Field(4.0, description="RISE gain ks (23)")
-    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s")
-    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s")
-    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad")
+    ks: Positive = Field(4.0, description="RISE gain ks (23); (ks + 1)·dt/J ≤ 2/(2 − αr·dt)")
+    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s; ripple ≤ 1/20 torque limit")
+    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s; αr·dt ≤ 1/2")
+    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad; k·dt/J ≤ 1")
 
 
 class FilterConfig(StrictModel):
