@@ -15,6 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from sessions import stability
+
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -56,13 +58,17 @@ class UserConfig(StrictModel):
 
 
 class ControllerConfig(StrictModel):
-    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise")."""
+    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise").
+
+    Their upper bounds depend on the loop rate and the inertia, so SessionConfig checks them
+    (sessions/stability.py): k·dt/J ≤ 1; (ks + 1)·dt/J ≤ 2/(2 − αr·dt); αr·dt ≤ ½; β's
+    sign-integral ripple within 1/20 of the torque limit."""
 
     kind: Literal["rise", "measured"] = "rise"
-    ks: Positive = Field(4.0, description="RISE gain ks (23)")
-    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s")
-    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s")
-    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad")
+    ks: Positive = Field(4.0, description="RISE gain ks (23); (ks + 1)·dt/J ≤ 2/(2 − αr·dt)")
+    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s; ripple ≤ 1/20 torque limit")
+    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s; αr·dt ≤ 1/2")
+    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad; k·dt/J ≤ 1")
 
 
 class FilterConfig(StrictModel):
@@ -147,6 +153,22 @@ class SessionConfig(StrictModel):
             )
         if self.seeker.setpoint is not None and self.seeker.setpoint >= self.machine.max_velocity:
             raise ValueError("seeker.setpoint: must be below machine.max_velocity")
+        if self.seeker.kind == "perturbation" and top + self.seeker.amplitude >= (
+            self.machine.max_velocity
+        ):  # θ is projected onto the bracket; the dither rides on it
+            raise ValueError(
+                f"seeker.amplitude: γ3 + ae = {top + self.seeker.amplitude:g} must be below "
+                f"machine.max_velocity = {self.machine.max_velocity}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _holdable(self) -> SessionConfig:
+        """Gains and a reference the discrete loop can hold at this rate and inertia: the
+        bounds of :mod:`sessions.stability`, checked for every entry point (TOML, REST, UI)."""
+        problem = stability.violation(self)
+        if problem is not None:
+            raise ValueError(problem)
         return self
 
     @property

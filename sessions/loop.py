@@ -18,6 +18,7 @@ from sessions.limits import Limits
 from sessions.objective import modified_power, surrogate_power
 from sessions.passivity import PassivityMonitor
 from sessions.seekers import Evaluation, make_seeker
+from sessions.stability import deadbeat_gain
 from sessions.telemetry import INDEX, WIDTH
 
 
@@ -34,7 +35,7 @@ class Loop:
         self.k = 0
         self.controller = make_controller(cfg.controller, m.inertia)
         self.seeker = make_seeker(cfg.seeker, self.dt, m.max_velocity, as_printed=as_printed)
-        self.limits = Limits(m.max_torque, m.max_velocity)
+        self.limits = Limits(m.max_torque, m.max_velocity, deadbeat_gain(m.inertia, self.dt))
         self.passivity = PassivityMonitor(m.passivity_c2)
         self.rho = cfg.seeker.rho
         self.surrogate = cfg.seeker.objective == "surrogate"
