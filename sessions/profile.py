@@ -572,11 +572,21 @@ def fit_profile(
     else:
         sol = hill if model == "hill" and hill is not None else lin
         p_value = _choose(lin, hill, float((y / se) @ (y / se)))[1]
-    return _result(sol, means, confidence, points, p_value)
+    short = [i for i, s in enumerate(steps) if s.q is not None and abs(s.q[-1] - s.q[0]) < TWO_PI]
+    notes = [
+        f"steps {short}: less than one turn of the handle; a stroke-angle ripple biases "
+        "their means (plan whole turns)"
+    ]
+    return _result(sol, means, confidence, points, p_value, notes if short else [])
 
 
 def _result(
-    sol: _Solution, means: list[StepMean], confidence: float, points: int, p_value: float | None
+    sol: _Solution,
+    means: list[StepMean],
+    confidence: float,
+    points: int,
+    p_value: float | None,
+    notes: list[str],
 ) -> ProfileFit:
     rchi2 = sol.ssr / sol.dof if sol.dof > 0 else math.nan
     cov = sol.cov * (rchi2 if sol.dof > 0 else math.nan)
@@ -588,7 +598,7 @@ def _result(
         return _log_estimate(math.log(f(th)), float(g @ cov @ g), t)
 
     w_opt = sol.law.w_opt
-    warnings = []
+    warnings = list(notes)
     if sol.at_bound:
         warnings.append(f"Hill's curvature a reached its bound {A_BOUNDS}")
     wmax = math.exp(th[1])
