@@ -104,30 +104,41 @@ class ReportData:
 _TEXT = TextToPath()
 
 
-def text_width(s: str, size: float) -> float:
+def text_width(s: str, size: float, weight: str = "normal") -> float:
     """Width of ``s`` in points at font size ``size`` (the default font, as drawn)."""
-    w, _, _ = _TEXT.get_text_width_height_descent(s, FontProperties(size=size), ismath=False)
+    font = FontProperties(size=size, weight=weight)
+    w, _, _ = _TEXT.get_text_width_height_descent(s, font, ismath=False)
     return float(w)
 
 
-def fit_text(s: str, width_pt: float, size: float) -> str:
+def fit_text(s: str, width_pt: float, size: float, weight: str = "normal") -> str:
     """``s`` on one line, cut with an ellipsis to at most ``width_pt`` points."""
     s = " ".join(str(s).split())  # newlines and tabs would stack lines
-    if text_width(s, size) <= width_pt:
+    if text_width(s, size, weight) <= width_pt:
         return s
     lo, hi = 0, len(s)
     while lo < hi:  # the longest prefix that fits with its ellipsis
         mid = (lo + hi + 1) // 2
-        if text_width(s[:mid] + "…", size) <= width_pt:
+        if text_width(s[:mid] + "…", size, weight) <= width_pt:
             lo = mid
         else:
             hi = mid - 1
     return s[:lo].rstrip() + "…"
 
 
-def _plain(fig: Figure, x: float, y: float, s: str, width: float, size: float, **kw: Any) -> None:
+def _plain(
+    fig: Figure,
+    x: float,
+    y: float,
+    s: str,
+    width: float,
+    size: float,
+    weight: str = "normal",
+    **kw: Any,
+) -> None:
     """User text at figure position (x, y), cut to ``width`` (figure fraction)."""
-    fig.text(x, y, fit_text(s, width * A4[0] * 72, size), size=size, parse_math=False, **kw)
+    text = fit_text(s, width * A4[0] * 72, size, weight)
+    fig.text(x, y, text, size=size, weight=weight, parse_math=False, **kw)
 
 
 # -- formatting --------------------------------------------------------------------------------
