@@ -81,8 +81,9 @@ def telemetry_columns(source: Any, names: Iterable[str]) -> dict[str, np.ndarray
 
 
 def sample_period(t: np.ndarray) -> float:
-    """The loop period, from the median spacing of ``t`` (0 for fewer than two samples)."""
-    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    """The loop period: the median spacing of the first 10 000 samples of ``t`` (robust to a
+    lost sample; 0 for fewer than two samples)."""
+    return float(np.median(np.diff(t[:10_001]))) if len(t) > 1 else 0.0
 
 
 def check_phases(phases: Sequence[Phase]) -> tuple[Phase, ...]:

@@ -24,7 +24,8 @@ import math
 import os
 import tempfile
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime, tzinfo
 from pathlib import Path
@@ -186,32 +187,27 @@ def _rule(fig: Figure, y: float) -> None:
 
 def _figures(fig: Figure, d: ReportData) -> None:
     s, m, unit = d.summary, d.body_mass_kg, d.velocity_unit
-    seeker = (
-        f"{s.seeker or '–'} ({'converged' if s.converged else 'not converged'}, "
-        f"{s.evaluations} candidates)"
-    )
     left = [
         ("Optimum velocity", _velocity(s.optimum_w, unit)),
         ("Power at the optimum", _power(s.optimum_p, m)),
         ("Peak power", _power(s.peak_power, m)),
         ("Mean power", _power(s.mean_power, m)),
+        ("Body mass", _num(m, 3, "kg")),
     ]
     right = [
         ("Work", _num(s.work / 1000.0, 3, "kJ")),
         ("Passivity minimum", _num(s.passivity_min, 3, "J")),
-        ("Seeker", seeker),
-        (
-            "Controller" if d.controller else "Body mass",
-            d.controller or _num(d.body_mass_kg, 3, "kg"),
-        ),
+        ("Seeker", f"{s.seeker or '–'}, {'converged' if s.converged else 'not converged'}"),
+        ("Candidates measured", str(s.evaluations)),
+        ("Controller", d.controller or "–"),
     ]
     for col, rows in ((0.06, left), (0.52, right)):
         for i, (label, value) in enumerate(rows):
-            y = 0.895 - i * 0.019
+            y = 0.897 - i * 0.017
             fig.text(col, y, label, size=8.5, color="#555555")
             _plain(fig, col + 0.17, y, value, 0.25, 9, weight="bold")
     if s.abort_reason:
-        _plain(fig, 0.06, 0.815, f"Ended early: {s.abort_reason}", 0.88, 8.5, color="#b00020")
+        _plain(fig, 0.06, 0.808, f"Ended early: {s.abort_reason}", 0.88, 8.5, color="#b00020")
 
 
 def _phase_table(fig: Figure, d: ReportData, phases: tuple[Phase, ...]) -> None:
@@ -383,12 +379,14 @@ def _profile_text(fit: ProfileFit, d: ReportData) -> str:
 
 
 def _decimated(cols: dict[str, np.ndarray], columns: int) -> dict[str, np.ndarray]:
-    """Min/max pairs per chart column (every extreme kept), power τ·w computed at full rate."""
-    names = [*CHANNELS, "p"]
-    full = np.vstack([cols[n] for n in CHANNELS] + [cols["tau"] * cols["w"]])
-    n = full.shape[1]
-    out = full if n <= 2 * columns else minmax_pairs(full, -(-n // columns))
-    return dict(zip(names, out, strict=True))
+    """Min/max pairs per chart column (every extreme kept), power τ·w computed at full rate;
+    one channel at a time, so an hour at 1 kHz is never copied whole."""
+    series = {name: cols[name] for name in CHANNELS} | {"p": cols["tau"] * cols["w"]}
+    n = len(cols["t"])
+    if n <= 2 * columns:
+        return series
+    size = -(-n // columns)
+    return {name: minmax_pairs(x[np.newaxis, :], size)[0] for name, x in series.items()}
 
 
 def _time_charts(
@@ -458,8 +456,22 @@ def _check(d: ReportData) -> tuple[dict[str, np.ndarray], tuple[Phase, ...]]:
     return cols, check_phases(d.phases)
 
 
+@contextmanager
+def missing_glyphs_quiet() -> Iterator[None]:
+    """Glyphs the bundled font lacks (CJK, emoji) print as boxes, each with a warning that
+    says only that: silenced while a page is built and drawn."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font")
+        yield
+
+
 def report_figure(d: ReportData) -> Figure:
     """The report's page as a matplotlib figure (A4 portrait), for the PDF or a preview image."""
+    with missing_glyphs_quiet():
+        return _page(d)
+
+
+def _page(d: ReportData) -> Figure:
     cols, phases = _check(d)
     fig = Figure(figsize=A4)
     _header(fig, d)
@@ -486,9 +498,8 @@ def report_figure(d: ReportData) -> Figure:
 def render_report(d: ReportData) -> bytes:
     """The one-page A4 PDF report of a session (see the module's docstring). Glyphs the
     bundled font lacks (CJK, emoji) print as boxes, their text still in the PDF's text layer."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=r"Glyph \d+ .* missing from font")
-        fig = report_figure(d)
+    with missing_glyphs_quiet():
+        fig = _page(d)
         FigureCanvasPdf(fig)
         buf = io.BytesIO()
         meta = {"Title": f"Session report: {d.user_name}", "Creator": "ergoseek"}
