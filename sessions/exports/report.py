@@ -419,12 +419,24 @@ def _time_charts(
             ax.axvline(ph.start / scale, color="#bbbbbb", lw=0.5)
         if ax is not work:
             ax.tick_params(labelbottom=False)
-    for ph in phases[:40]:
-        vel.text(
-            (ph.start + ph.end) / 2 / scale,
+    _phase_labels(vel, phases, scale)
+
+
+def _phase_labels(ax: Axes, phases: tuple[Phase, ...], scale: float) -> None:
+    """Each phase's name above the velocity chart, where its span is wide enough for one."""
+    lo, hi = ax.get_xlim()
+    width_pt = ax.get_position().width * A4[0] * 72
+    for ph in phases:
+        a, b = max(ph.start / scale, lo), min(ph.end / scale, hi)
+        span = (b - a) / (hi - lo) * width_pt
+        if span < 18:  # a 20 s interval in an hour: the table lists it
+            continue
+        label, mid = fit_text(ph.name, span - 4, 6), (a + b) / 2
+        ax.text(
+            mid,
             1.02,
-            fit_text(ph.name, 60, 6),
-            transform=vel.get_xaxis_transform(),
+            label,
+            transform=ax.get_xaxis_transform(),
             ha="center",
             size=6,
             parse_math=False,
