@@ -8,8 +8,10 @@ Each step reports which limit acted, as bit flags, so the worker can raise event
 
 from __future__ import annotations
 
-TORQUE_LIMIT = 1
-VELOCITY_LIMIT = 2
+from sessions.codes import TORQUE_LIMIT, VELOCITY_LIMIT
+
+__all__ = ["GOVERNOR_SPAN", "TORQUE_LIMIT", "VELOCITY_LIMIT", "Limits"]
+
 GOVERNOR_SPAN = 0.5  # rad/s of overspeed for full braking torque
 
 

@@ -17,11 +17,11 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session as OrmSession
 
+from sessions.codes import END_STATUSES, STATUSES, SessionStatus
 from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import ConflictError, NotFoundError, StoreValueError
 from sessions.store.models import (
-    STATUSES,
     Account,
     Event,
     ExerciseSession,
@@ -37,9 +37,8 @@ from sessions.store.records import (
     SessionRecord,
 )
 from sessions.store.users import page_bounds
-from sessions.summary import SessionStatus, SessionSummary
+from sessions.summary import SessionSummary
 
-FINAL_STATUSES = tuple(s for s in STATUSES if s != "running")
 RESTART_REASON = "server restarted"
 
 
@@ -248,7 +247,7 @@ class SessionRepository:
     ) -> SessionRecord:
         """End a running session with a final ``status`` and the engine's ``summary`` (without
         one, the live figures stay). :class:`ConflictError` if it is not running."""
-        status = v.choice("status", status, FINAL_STATUSES)  # type: ignore[assignment]
+        status = v.choice("status", status, END_STATUSES)  # type: ignore[assignment]
         values: dict[str, Any] = {"status": status}
         reason = abort_reason
         if summary is not None:
