@@ -61,7 +61,7 @@ class Runtime:
             return MachineSpec(kind="sim")
         device = s.device
         if s.machine == "odrive-emulator":  # the real protocol, over a real pty
-            from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
+            from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 
             self.emulator = EmulatorProcess(EmulatorConfig(inertia=s.inertia))
             device = self.emulator.path
@@ -70,7 +70,7 @@ class Runtime:
             device=device,
             gear_ratio=s.gear_ratio,
             direction=s.direction,
-            timeout=s.reply_timeout,
+            reply_timeout=s.reply_timeout,
             watchdog_timeout=s.watchdog_timeout,
         )
 

@@ -40,7 +40,7 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from server.cli import UsageError
     from sessions.config import SessionConfig, load_scenario
-    from sessions.machine.emulator import EmulatorConfig, OdriveEmulator, device_priority
+    from sessions.machine.odrive.emulator import EmulatorConfig, OdriveEmulator, device_priority
 
     cfg = load_scenario(args.scenario) if args.scenario else SessionConfig()
     extra: dict[str, Any] = {}

@@ -67,7 +67,7 @@ def _machine_spec(args: argparse.Namespace) -> Any:
             gear_ratio=args.gear_ratio,
             direction=args.direction,
             watchdog_timeout=args.watchdog_timeout,
-            timeout=args.reply_timeout,
+            reply_timeout=args.reply_timeout,
         )
     except ValidationError as exc:
         raise UsageError(describe_validation_error(exc)) from None

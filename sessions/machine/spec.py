@@ -2,7 +2,10 @@
 
 ``sim`` needs nothing: the plant and the simulated user come from each session's config.
 ``odrive`` needs the serial device and the rig's mechanics (gear ratio, direction) and the
-safety settings of the drive (watchdog, reply timeout, velocity margin).
+safety settings of the drive (watchdog, reply timeout, velocity margin). Every setting of the
+drive is defined here once; the server's settings and the command line take them from here.
+
+Which controller a machine can run is decided here too (:func:`check_controller`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ class MachineSpec(BaseModel):
     watchdog_timeout: float = Field(
         0.05, gt=0, le=1.0, description="odrive: device watchdog, s (fed every cycle)"
     )
-    timeout: float = Field(
+    reply_timeout: float = Field(
         0.02, gt=0, le=1.0, description="odrive: longest wait for a reply before a fault, s"
     )
     checksum: bool = Field(True, description="odrive: send and require line checksums")
@@ -44,7 +47,7 @@ class MachineSpec(BaseModel):
     def _device(self) -> MachineSpec:
         if self.kind == "odrive" and not self.device:
             raise ValueError("the odrive machine needs a device path")
-        if self.watchdog_timeout <= self.timeout:
+        if self.watchdog_timeout <= self.reply_timeout:
             raise ValueError("watchdog_timeout must exceed the reply timeout")
         return self
 
@@ -52,3 +55,13 @@ class MachineSpec(BaseModel):
     def has_torque_sensor(self) -> bool:
         """Controller A (measured torque) needs one: the simulator has it, an ODrive has not."""
         return self.kind == "sim"
+
+
+def check_controller(machine: str, has_torque_sensor: bool, controller: str) -> None:
+    """Refuse a controller the machine cannot run: controller A (7) feeds back the measured
+    user torque, so it needs a torque sensor. Raises ValueError (one wording everywhere)."""
+    if controller == "measured" and not has_torque_sensor:
+        raise ValueError(
+            f"the {machine} machine has no torque sensor: controller 'measured' (eq. 7) needs "
+            "one; use 'rise' (eq. 23)"
+        )

@@ -11,7 +11,7 @@ from websockets.sync.client import connect
 
 from sessions.config import UserConfig
 from sessions.people import SimulatedUser
-from tests.server_support import ServerProcess, start_server
+from testing.server import ServerProcess, start_server
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
 

@@ -12,7 +12,7 @@ logging out blocks ``/dashboard/`` and its WebSocket.
 
 The screenshot taken mid-session is kept in the test's tmp_path; with
 ``ERGOSEEK_UPDATE_SCREENSHOT=1`` it replaces ``docs/img/dashboard.png`` (or run
-``python -m webui.screenshot``).
+``python -m testing.screenshot``).
 """
 
 from __future__ import annotations
@@ -31,8 +31,7 @@ import viser
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from webui.dashboard import viser_server
-from webui.harness import (
+from testing.browser import (
     CHROMIUM,
     TRAINER,
     VIEWPORT,
@@ -42,9 +41,9 @@ from webui.harness import (
     readout,
     text_field,
 )
+from testing.screenshot import DEFAULT_OUT as SCREENSHOT
+from webui.dashboard import viser_server
 
-ROOT = Path(__file__).resolve().parents[2]
-SCREENSHOT = ROOT / "docs" / "img" / "dashboard.png"
 VIEWER, VIEWER_PASSWORD = "watcher", "viewer-password-1"
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 

@@ -27,7 +27,7 @@ import pytest
 import yaml
 from websockets.sync.client import connect as ws_connect
 
-from tests import docker_support as ds
+from testing import docker as ds
 
 pytestmark = pytest.mark.docker
 

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from sessions.telemetry import csv_header
+from testing.cli import ergoseek
 
 SCENARIO = """
 duration = 12.0
@@ -24,17 +23,6 @@ kind = "parabolic"
 bracket = [1.0, 2.5, 4.0]
 objective = "surrogate"
 """
-
-
-def ergoseek(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "server", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=120,
-        check=False,
-    )
 
 
 def test_simulate_json_and_csv(tmp_path: Path) -> None:

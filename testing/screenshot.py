@@ -1,4 +1,4 @@
-"""``python -m webui.screenshot [OUT]``: a screenshot of the dashboard mid-session (default
+"""``python -m testing.screenshot [OUT]``: a screenshot of the dashboard mid-session (default
 ``docs/img/dashboard.png``): ``ergoseek demo`` with a fresh data directory, the demo user Ada
 on the simulated machine, headless Chromium at 1500×950."""
 
@@ -10,7 +10,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from webui.harness import TRAINER, VIEWPORT, DemoServer, chromium, login, readout
+from testing.browser import TRAINER, VIEWPORT, DemoServer, chromium, login, readout
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "dashboard.png"
 

@@ -4,6 +4,9 @@
 
     with ServerProcess(tmp, accounts=[("coach", "coach-pass-1", "trainer")]).start() as srv:
         with srv.client("coach") as c: ...
+
+:func:`start_server` is the tests' server: ``ergoseek serve`` with the simulated machine, no
+dashboard, and one account of each role, whose login is the role's name.
 """
 
 from __future__ import annotations
@@ -193,3 +196,35 @@ class ServerProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+PASSWORDS = {"admin": "admin-pass-1", "trainer": "trainer-pass-1", "viewer": "viewer-pass-1"}
+ACCOUNTS = [(role, password, role) for role, password in PASSWORDS.items()]
+
+
+def start_server(
+    data_dir: Path, *args: str, port: int | None = None, env: dict[str, str] | None = None
+) -> ServerProcess:
+    """``ergoseek serve --no-dashboard ARGS`` with an account per role, started (healthy)."""
+    return ServerProcess(
+        data_dir,
+        "serve",
+        ["--no-dashboard", *args],
+        list(ACCOUNTS),
+        env or {},
+        port or free_port(),
+    ).start()
+
+
+def worker_pid(server_pid: int) -> int | None:
+    """The ergoseek worker process among the server's children."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        with contextlib.suppress(OSError):
+            stat = (entry / "stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            cmdline = (entry / "cmdline").read_bytes()
+            if ppid == server_pid and b"multiprocessing" in cmdline and b"spawn_main" in cmdline:
+                return int(entry.name)
+    return None

@@ -1,10 +1,11 @@
-"""Keeping time in the worker: the OS settings a real-time loop asks for, and the statistics of
-how well it kept its deadlines.
+"""Keeping time in the worker: the pace of the cycles, the OS settings a real-time loop asks
+for, and the statistics of how well it kept its deadlines (like ros2_control's sleeping
+policies, in a file of their own).
 
-Schedule: absolute deadlines ``t0 + k·period`` (no drift). Each cycle sleeps until
-``spin`` before its deadline, then spins on the clock for the last stretch, so the wake-up
-does not inherit the sleep's overshoot. A cycle that wakes a whole period (or more) late skips
-the deadlines it missed (they are counted, not replayed).
+Schedule (:class:`Pacer`): absolute deadlines ``t0 + k·period`` (no drift). Each cycle sleeps
+until ``spin`` before its deadline, then spins on the clock for the last stretch, so the
+wake-up does not inherit the sleep's overshoot. A cycle that wakes a whole period (or more)
+late skips the deadlines it missed (they are counted, not replayed).
 
 Statistics: lateness (wake-up − deadline) and compute time (wake-up → record published) in
 1 µs bins up to 20 ms (the maximum is kept exactly); percentiles are read off the cumulative
@@ -15,7 +16,9 @@ from __future__ import annotations
 
 import ctypes
 import os
+import time
 from array import array
+from collections.abc import Callable
 
 import numpy as np
 
@@ -119,3 +122,44 @@ class TimingRecorder:
             compute_max_us=round(self.compute_max, 1),
             overruns=self.overruns,
         )
+
+
+class Pacer:
+    """The cycle's clock: :meth:`wait` returns at the next deadline; :attr:`timing` keeps the
+    statistics (lateness, compute, missed periods)."""
+
+    __slots__ = ("deadline", "period", "spin", "timing")
+
+    def __init__(self, rate: float, spin_s: float) -> None:
+        self.period = 1.0 / rate
+        self.spin = spin_s
+        self.deadline = 0.0
+        self.timing = TimingRecorder(rate)
+
+    def start(self) -> None:
+        """The first deadline: one period from now."""
+        self.deadline = time.monotonic() + self.period
+
+    def wait(
+        self,
+        mono: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> tuple[float, float]:
+        """Sleep, then spin, until the deadline; returns (wake-up time, lateness), both s.
+        (The clock functions are bound once, as defaults: this runs every period.)"""
+        deadline = self.deadline
+        now = mono()
+        rem = deadline - now
+        if rem > self.spin:
+            sleep(rem - self.spin)
+            now = mono()
+        while now < deadline:
+            now = mono()
+        late = now - deadline
+        period = self.period
+        if late >= period:
+            skipped = int(late / period)
+            self.timing.missed += skipped
+            deadline += skipped * period
+        self.deadline = deadline + period
+        return now, late

@@ -36,7 +36,7 @@ import serial
 
 from sessions.config import SessionConfig
 from sessions.machine.base import Machine, MachineError
-from sessions.machine.protocol import (
+from sessions.machine.odrive.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     AXIS_STATE_IDLE,
     CONTROL_MODE_TORQUE_CONTROL,
@@ -72,7 +72,7 @@ class OdriveMachine(Machine):
         ratio = spec.direction * spec.gear_ratio
         self.rad_per_turn = 2.0 * math.pi / ratio  # motor turns → handle rad
         self.motor_per_handle_torque = 1.0 / ratio  # handle N·m → motor N·m
-        self.timeout = spec.timeout
+        self.timeout = spec.reply_timeout
         self.use_checksum = spec.checksum
         self.ser: serial.Serial | None = None
         self.fd = -1
@@ -108,6 +108,10 @@ class OdriveMachine(Machine):
 
     def _reply(self, request: bytes) -> str:
         """The one reply line to ``request`` (already sent), checked; nothing else may follow."""
+        return self._check(self._line(request), request)
+
+    def _line(self, request: bytes) -> bytes:
+        """Wait (at most ``timeout``) for the reply's line; return it without its ``\n``."""
         buf = self.buf
         deadline = time.monotonic() + self.timeout
         ser = self.ser
@@ -142,6 +146,10 @@ class OdriveMachine(Machine):
             raise MachineError(
                 f"unexpected data after the reply to {_show(request)}: {_show(extra)}"
             )
+        return line
+
+    def _check(self, line: bytes, request: bytes) -> str:
+        """A reply line's text: framing, checksum, encoding and error replies checked."""
         if not line.endswith(b"\r"):
             raise MachineError(f"garbled reply to {_show(request)}: {_show(line)}")
         line = line[:-1]

@@ -1,9 +1,9 @@
 """A session writer for the crash tests, run as its own process:
 
-    python -m tests.store_writer URL
+    python -m testing.store_writer URL
 
 Opens the store, starts a session and feeds it in real time through a background
-:class:`~sessions.store.SessionRecorder`: 1 kHz telemetry (``tests.store_data.telemetry``)
+:class:`~sessions.store.SessionRecorder`: 1 kHz telemetry (``testing.store.telemetry``)
 in 10 ms blocks, an evaluation every 0.25 s and an event every second. Sample k is fed
 once ``k`` ms have passed since ``start``, so at any moment everything fed has
 ``t ≤ now - start``. Prints one JSON line ``{"session": id, "start": monotonic}`` when
@@ -18,7 +18,7 @@ import time
 from sessions.config import parse_session_config
 from sessions.seekers import Evaluation
 from sessions.store import open_store
-from tests.store_data import FAST_HASHER, telemetry
+from testing.store import FAST_HASHER, telemetry
 
 SECONDS = 60.0
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import httpx
 
-from server.harness import ServerProcess, free_port
+from testing.server import ServerProcess, free_port
 
 CHROMIUM = os.environ.get("ERGOSEEK_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
