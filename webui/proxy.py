@@ -22,14 +22,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Any
 
 from fastapi import WebSocket, status
 from starlette.websockets import WebSocketDisconnect
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from server.auth import COOKIE, bearer, identify, origin_allowed
+from server.runtime import Runtime
+from server.security import COOKIE, bearer, identify, origin_allowed
+from sessions.store import AccountRecord, Store
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -58,8 +59,7 @@ async def refuse(ws: WebSocket, why: str) -> None:
     await ws.close(code=status.WS_1008_POLICY_VIOLATION)
 
 
-async def dashboard_socket(ws: WebSocket) -> None:
-    runtime = ws.app.state.runtime
+async def dashboard_socket(ws: WebSocket, runtime: Runtime) -> None:
     dashboard = runtime.dashboard
     if dashboard is None:
         await refuse(ws, "no dashboard")
@@ -100,7 +100,7 @@ async def dashboard_socket(ws: WebSocket) -> None:
     _count.open += 1
     try:
         await ws.accept(subprotocol=upstream.subprotocol or proto)
-        await relay(ws, upstream, runtime, secret, account)
+        await relay(ws, upstream, runtime.store, secret, account)
     finally:
         _count.open -= 1
         with contextlib.suppress(Exception):
@@ -108,7 +108,7 @@ async def dashboard_socket(ws: WebSocket) -> None:
 
 
 async def relay(
-    ws: WebSocket, upstream: ClientConnection, runtime: Any, secret: str, account: Any
+    ws: WebSocket, upstream: ClientConnection, store: Store, secret: str, account: AccountRecord
 ) -> None:
     async def browser_to_viser() -> tuple[int, str]:
         while True:
@@ -139,7 +139,7 @@ async def relay(
     async def recheck() -> tuple[int, str]:
         while True:
             await asyncio.sleep(RECHECK_S)
-            now = await asyncio.to_thread(runtime.store.tokens.resolve, secret)
+            now = await asyncio.to_thread(store.tokens.resolve, secret)
             if now is None or now.disabled or now.role != account.role or now.id != account.id:
                 log.info("dashboard socket of %s closed: login ended or changed", account.login)
                 return (status.WS_1008_POLICY_VIOLATION, "login ended")

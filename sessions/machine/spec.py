@@ -14,6 +14,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+Direction = Literal[1, -1]  # +1 if the motor's positive direction is the handle's
+
 
 class MachineSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -23,7 +25,7 @@ class MachineSpec(BaseModel):
     baudrate: int = Field(921600, gt=0, description="odrive: UART baud rate (ignored by USB CDC)")
     axis: int = Field(0, ge=0, le=1, description="odrive: axis the handle is on")
     gear_ratio: float = Field(1.0, gt=0, le=1000, description="odrive: motor turns per handle turn")
-    direction: Literal[1, -1] = Field(
+    direction: Direction = Field(
         1, description="odrive: +1 if the motor's positive direction is the handle's, else -1"
     )
     watchdog_timeout: float = Field(

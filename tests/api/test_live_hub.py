@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from server.live import BACKLOG_SECONDS, LiveHub, serve_subscription
+from server.service.live import BACKLOG_SECONDS, LiveHub, serve_subscription
 from sessions.codes import FLAG_ESTOP
 from sessions.worker.ring import INDEX as RING
 

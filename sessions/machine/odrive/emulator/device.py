@@ -80,8 +80,9 @@ class EmulatorConfig:
 
     @classmethod
     def from_session(cls, cfg: SessionConfig, **kw: object) -> EmulatorConfig:
-        """The person and handle of a scenario, on an emulated drive."""
-        return cls(user=cfg.user, inertia=cfg.machine.inertia, seed=cfg.seed, **kw)  # type: ignore[arg-type]
+        """The person and handle of a scenario, on an emulated drive (``kw`` overrides)."""
+        given = {"user": cfg.user, "inertia": cfg.machine.inertia, "seed": cfg.seed, **kw}
+        return cls(**given)  # type: ignore[arg-type]
 
     @classmethod
     def for_rig(cls, drive: MachineSpec, machine: MachineConfig, **kw: object) -> EmulatorConfig:

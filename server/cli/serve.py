@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
+
+if TYPE_CHECKING:
+    from server.settings import Settings
 
 
 def add_server_flags(p: argparse.ArgumentParser) -> None:
@@ -29,7 +32,7 @@ def register(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def settings_from(args: argparse.Namespace, **extra: Any) -> Any:
+def settings_from(args: argparse.Namespace, **extra: Any) -> Settings:
     from server.cli import UsageError
     from server.settings import Settings
 
@@ -47,7 +50,7 @@ def settings_from(args: argparse.Namespace, **extra: Any) -> Any:
     return settings
 
 
-def serve(settings: Any) -> int:
+def serve(settings: Settings) -> int:
     import logging
 
     import uvicorn

@@ -22,10 +22,11 @@ def register(sub: Any) -> None:
         description="Serve an emulated ODrive on a pty: prints its device path, runs until killed.",
     )
     p.add_argument("--scenario", help="TOML scenario: the person, inertia and seed to emulate")
-    p.add_argument("--gear-ratio", type=float, default=1.0, help="motor turns per handle turn")
-    p.add_argument("--direction", type=int, choices=(1, -1), default=1)
-    p.add_argument("--axis", type=int, choices=(0, 1), default=0, help="axis the handle is on")
-    p.add_argument("--physics-rate", type=float, default=8000.0, help="physics steps per s")
+    # the rig's mechanics: EmulatorConfig's fields (its defaults when not given)
+    p.add_argument("--gear-ratio", type=float, help="motor turns per handle turn")
+    p.add_argument("--direction", type=int, choices=(1, -1))
+    p.add_argument("--axis", type=int, choices=(0, 1), help="axis the handle is on")
+    p.add_argument("--physics-rate", type=float, help="physics steps per s")
     p.add_argument("--seed", type=int, help="override the scenario's seed")
     p.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the device")
     p.add_argument("--quiet", action="store_true", help="no device events on stderr")
@@ -43,21 +44,12 @@ def run(args: argparse.Namespace) -> int:
     from sessions.machine.odrive.emulator import EmulatorConfig, OdriveEmulator, device_priority
 
     cfg = load_scenario(args.scenario) if args.scenario else SessionConfig()
-    extra: dict[str, Any] = {}
-    if args.seed is not None:
-        if args.seed < 0:
-            raise UsageError("--seed must be ≥ 0")
-        extra["seed"] = args.seed
+    if args.seed is not None and args.seed < 0:
+        raise UsageError("--seed must be ≥ 0")
+    given = ("gear_ratio", "direction", "axis", "physics_rate", "seed")
+    mechanics: dict[str, Any] = {k: v for k in given if (v := getattr(args, k)) is not None}
     try:
-        rig = EmulatorConfig(
-            user=cfg.user,
-            inertia=cfg.machine.inertia,
-            seed=extra.get("seed", cfg.seed),
-            gear_ratio=args.gear_ratio,
-            direction=args.direction,
-            axis=args.axis,
-            physics_rate=args.physics_rate,
-        )
+        rig = EmulatorConfig.from_session(cfg, **mechanics)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.link and os.path.lexists(args.link):

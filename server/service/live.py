@@ -1,6 +1,6 @@
-"""Live telemetry and events fanned out to WebSocket clients.
+"""Live telemetry and events fanned out to subscribers (WebSocket clients, the dashboard).
 
-The control pump publishes every batch it reads from the worker's ring, and every event.
+The pump publishes every batch of records it reads from the worker's ring, and every event.
 Each client has its own subscription: a sample rate (default 30 Hz, up to the loop rate:
 samples whose sequence number is a multiple of loop_rate/rate), a bounded backlog of pending
 samples and events, and its own sender. The pump never waits for a client: a client that
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from sessions.worker.ring import FLAG_ESTOP, FLAG_FAULT
-from sessions.worker.ring import INDEX as RING
+from sessions.codes import ZERO_TORQUE_FLAGS
+from sessions.telemetry import RECORD_INDEX as RING
 
-# Channels a telemetry frame carries, in the ring's column names.
+# Channels a telemetry frame carries (a record's, sessions.telemetry).
 FRAME_CHANNELS: tuple[str, ...] = (
     "t", "q", "w", "wd", "ad", "u", "u_out", "tau", "p", "W", "gamma", "phase", "flags", "mono",
 )  # fmt: skip
@@ -81,7 +81,7 @@ class LiveHub:
             sub.missed += missed
             # every step-th sample, and always the ones that end in zero torque (e-stop, fault)
             keep = (seq % sub.step == 0) | (
-                (data[:, RING["flags"]].astype(np.int64) & (FLAG_ESTOP | FLAG_FAULT)) != 0
+                (data[:, RING["flags"]].astype(np.int64) & ZERO_TORQUE_FLAGS) != 0
             )
             if not keep.any():
                 continue

@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import os
 import secrets
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from server.settings import Settings
 
 DEMO_LOGIN = "demo"
 PASSWORD_ENV = "ERGOSEEK_DEMO_PASSWORD"
@@ -37,7 +40,7 @@ DEMO_USERS: tuple[tuple[str, str, dict[str, Any]], ...] = (
 
 
 def register(sub: Any) -> None:
-    from server.commands.serve import add_server_flags
+    from server.cli.serve import add_server_flags
 
     p = sub.add_parser(
         "demo",
@@ -51,7 +54,7 @@ def register(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def prepare(settings: Any) -> str:
+def prepare(settings: Settings) -> str:
     """Create (or reset) the demo account and seed the users; returns the password."""
     from sessions.config import UserConfig
     from sessions.store import open_store
@@ -72,7 +75,7 @@ def prepare(settings: Any) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from server.cli import UsageError
-    from server.commands.serve import serve, settings_from
+    from server.cli.serve import serve, settings_from
     from sessions.store import StoreValueError
 
     settings = settings_from(args, machine="sim", demo=True)

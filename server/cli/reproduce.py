@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     matplotlib.use("Agg")
     from server.cli import UsageError
-    from server.commands.simulate import _clean
+    from server.cli.simulate import _clean
     from sessions.experiments import experiment
     from sessions.simulation import run_simulation, score
 

@@ -1,4 +1,5 @@
-"""Who is asking, and may they: logins, roles, failed-login limits, Origin checks.
+"""Who is asking: logins, failed-login limits, Origin checks. (The API's role checks are
+dependencies built on these: :mod:`server.api.deps`; the dashboard's proxy uses them too.)
 
 - Browsers log in at ``POST /api/v1/auth/login`` and get an HttpOnly, SameSite=Strict cookie;
   API clients get a bearer token at ``POST /api/v1/auth/token``. Both are random tokens whose
@@ -14,19 +15,16 @@
 
 from __future__ import annotations
 
-import asyncio
 import math
 import time
 from collections import defaultdict, deque
-from collections.abc import Awaitable, Callable
-from typing import Annotated, Literal
+from typing import Literal
 
-from fastapi import Depends, HTTPException, Request, WebSocket, status
+from fastapi import HTTPException, Request, WebSocket, status
 
-from sessions.store import AccountRecord, Role, Store
+from sessions.store import AccountRecord, Store
 
 COOKIE = "ergoseek_session"
-RANK: dict[str, int] = {"viewer": 0, "trainer": 1, "admin": 2}
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 
@@ -111,40 +109,6 @@ def unauthorized(detail: str = "not logged in") -> HTTPException:
     return HTTPException(
         status.HTTP_401_UNAUTHORIZED, detail=detail, headers={"WWW-Authenticate": "Bearer"}
     )
-
-
-async def current_account(request: Request) -> AccountRecord:
-    """The logged-in account; 401 otherwise, 403 for a cross-site change by cookie."""
-    runtime = request.app.state.runtime
-    account, how = await asyncio.to_thread(identify, request, runtime.store)
-    if account is None:
-        raise unauthorized("not logged in" if how == "none" else "login expired or revoked")
-    if (
-        how == "cookie"
-        and request.method not in SAFE_METHODS
-        and not origin_allowed(request, runtime.settings.allowed_origins)
-    ):
-        raise HTTPException(status.HTTP_403_FORBIDDEN, detail="cross-site request refused")
-    request.state.account = account
-    return account
-
-
-def require(role: Role) -> Callable[[AccountRecord], Awaitable[AccountRecord]]:
-    """A dependency: the account, if its role is at least ``role`` (else 403)."""
-
-    async def check(account: Annotated[AccountRecord, Depends(current_account)]) -> AccountRecord:
-        if RANK[account.role] < RANK[role]:
-            raise HTTPException(
-                status.HTTP_403_FORBIDDEN, detail=f"needs the {role} role (you are {account.role})"
-            )
-        return account
-
-    return check
-
-
-Viewer = Annotated[AccountRecord, Depends(require("viewer"))]
-Trainer = Annotated[AccountRecord, Depends(require("trainer"))]
-Admin = Annotated[AccountRecord, Depends(require("admin"))]
 
 
 def retry_after_header(seconds: float) -> dict[str, str]:

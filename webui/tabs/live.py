@@ -6,8 +6,8 @@ Only the trainers' viser server gets the controls (``control=True``); the viewer
 shows the same status and log with nothing to press.
 
 Threads: E-STOP is an async callback on viser's loop that only schedules
-``Control.estop`` on the web process's loop (no waiting, no store I/O, so nothing can delay
-it). Start / Stop / Reset are plain callbacks (viser runs them on its thread pool): they check
+``MachineService.estop`` on the web process's loop (no waiting, no store I/O, so nothing can
+delay it). Start / Stop / Reset are plain callbacks (viser runs them on its thread pool): they check
 the clicking account in the store, then wait for the web process's loop to do the action.
 """
 
@@ -15,18 +15,30 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import viser
 from pydantic import ValidationError
 
-from server.control import BusyError, RequestError, default_bracket
-from server.schemas import LimitsIn, SessionStart
+from server.service import BusyError
+from sessions.codes import LATCHED
 from sessions.config import ControllerConfig, SeekerConfig
 from sessions.experiments import BRACKETS, PAPER_GAINS
-from sessions.store import ConflictError, NotFoundError, StoreValueError
-from sessions.worker.handle import WorkerError
+from sessions.requests import LimitsIn, RequestError, SessionStart, auto_bracket
+from sessions.store import (
+    ConflictError,
+    NotFoundError,
+    SessionRecord,
+    SetpointRecord,
+    StoreValueError,
+    UserRecord,
+)
+from sessions.worker import WorkerError
 from webui.context import Context
+
+if TYPE_CHECKING:
+    from webui.feed import LiveState
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -36,11 +48,10 @@ BRACKET_AUTO = "around the stored optimum"
 BRACKET_CUSTOM = "custom (γ1, γ2, γ3)"
 CONTROLLERS = {"rise": "RISE, τ̂ observed (eq. 23)", "measured": "τ measured (eq. 7)"}
 SEEKERS = ("brent", "parabolic", "perturbation", "fixed")
-LATCHED = ("estopped", "faulted", "lost")
 DEFAULT_DURATION = 120.0
 
 
-def status_markdown(st: Any, user_name: str | None) -> str:
+def status_markdown(st: LiveState, user_name: str | None) -> str:
     """Machine state, armed, fault, loop timing, the running (or last) session."""
     ms = st.status
     if ms is None:
@@ -75,7 +86,9 @@ def status_markdown(st: Any, user_name: str | None) -> str:
 
 
 class LiveTab:
-    def __init__(self, gui: Any, server: Any, ctx: Context, *, control: bool) -> None:
+    def __init__(
+        self, gui: viser.GuiApi, server: viser.ViserServer, ctx: Context, *, control: bool
+    ) -> None:
         self.gui = gui
         self.server = server
         self.ctx = ctx
@@ -141,7 +154,7 @@ class LiveTab:
             self.bracket_mode.on_update(lambda _: ctx.background(self._show_optimum))
             self.max_velocity.on_update(lambda _: ctx.background(self._show_optimum))
             self.controller.on_update(lambda _: self._show_controller())
-            self._stored: Any = None
+            self._stored: SetpointRecord | None = None
         else:
             self.setup = gui.add_markdown("Viewer: the dashboard without controls.")
         self.log = gui.add_markdown(" ")
@@ -181,20 +194,16 @@ class LiveTab:
         self._stored = current
         if current is None:
             text = f"Stored optimum for {user.name}: **none yet**"
-            around = None
         else:
             power = f", {current.power:.3f} W" if current.power is not None else ""
             source = f", session #{current.session_id}" if current.session_id else ""
             v = current.velocity
             text = f"Stored optimum for {user.name}: **{v:.3f} rad/s**{power}{source}"
-            around = default_bracket(current.velocity, float(self.max_velocity.value))
-        if auto:
-            if around is None:  # the engine's default bracket (the server scales it if needed)
-                around = tuple(SeekerConfig().bracket)
-                text += " · bracket: the default"
-            else:
-                text += " · bracket around it"
-            self.g1.value, self.g2.value, self.g3.value = (round(float(x), 3) for x in around)
+        if auto:  # the bracket the server's policy will choose (sessions.requests)
+            optimum = current.velocity if current is not None else None
+            bracket, around = auto_bracket(optimum, float(self.max_velocity.value))
+            text += " · bracket around it" if around else " · bracket: the default"
+            self.g1.value, self.g2.value, self.g3.value = (round(float(x), 3) for x in bracket)
         self.optimum.content = text
 
     def request(self) -> SessionStart:
@@ -227,14 +236,14 @@ class LiveTab:
     def _say(self, text: str) -> None:
         self.message.content = f"{time.strftime('%H:%M:%S')} {text}"
 
-    def _refuse(self, event: Any, what: str) -> None:
+    def _refuse(self, event: viser.GuiEvent, what: str) -> None:
         self._say(f"{what}: not allowed from this connection")
         if event.client is not None:
             event.client.add_notification(
                 what, "Only a logged-in trainer may do this.", color="red", auto_close_seconds=5.0
             )
 
-    async def _on_estop(self, event: Any) -> None:
+    async def _on_estop(self, event: viser.GuiEvent) -> None:
         """On viser's loop: schedule the e-stop on the web process's loop, nothing else."""
         account_id = self.ctx.bridge.proxied_account_id(self.server, event.client_id)
         if account_id is None:
@@ -246,13 +255,13 @@ class LiveTab:
         """On the web process's loop."""
         log.warning("E-STOP from the dashboard (account %s)", account_id)
         try:
-            self.ctx.runtime.control.estop()
+            self.ctx.bridge.machine.estop()
         except (BusyError, WorkerError) as exc:
             self._say(f"E-STOP could not reach the worker: {exc}")
             return
         self._say("**E-STOP** sent: zero torque, latched until Reset")
 
-    def _on_start(self, event: Any) -> None:
+    def _on_start(self, event: viser.GuiEvent) -> None:
         account = self.ctx.bridge.trainer(self.server, event.client_id)
         if account is None:
             self._refuse(event, "Start")
@@ -271,7 +280,7 @@ class LiveTab:
         self._set("start", True, lambda v: setattr(self.start, "disabled", v))
         self._say("starting…")
         try:
-            record = self.ctx.bridge.run(self.ctx.runtime.control.start(req, account.id))
+            record = self.ctx.bridge.run(self.ctx.bridge.machine.start(req, account.id))
         except RequestError as exc:
             self._say(f"Not started: {exc.field}: {exc.reason}")
         except (BusyError, WorkerError, ConflictError, NotFoundError, StoreValueError) as exc:
@@ -283,29 +292,30 @@ class LiveTab:
         finally:
             self._starting = False
 
-    def _on_stop(self, event: Any) -> None:
+    def _on_stop(self, event: viser.GuiEvent) -> None:
         account = self.ctx.bridge.trainer(self.server, event.client_id)
         if account is None:
             self._refuse(event, "Stop")
             return
-        active = self.ctx.runtime.control.active
+        machine = self.ctx.bridge.machine
+        active = self.ctx.bridge.call(machine.active_session)
         if active is None:
             self._say("No session to stop")
             return
         try:
-            self.ctx.bridge.call(self.ctx.runtime.control.stop, active.db_id)
+            self.ctx.bridge.call(machine.stop, active.session_id)
         except (ConflictError, BusyError, WorkerError) as exc:
             self._say(f"Stop: {exc}")
         else:
-            self._say(f"Stopping session #{active.db_id} (torque ramped out)")
+            self._say(f"Stopping session #{active.session_id} (torque ramped out)")
 
-    def _on_reset(self, event: Any) -> None:
+    def _on_reset(self, event: viser.GuiEvent) -> None:
         account = self.ctx.bridge.trainer(self.server, event.client_id)
         if account is None:
             self._refuse(event, "Reset")
             return
         try:
-            self.ctx.bridge.run(self.ctx.runtime.control.reset())
+            self.ctx.bridge.run(self.ctx.bridge.machine.reset())
         except (BusyError, WorkerError) as exc:
             self._say(f"Reset: {exc}")
         except TimeoutError:
@@ -314,12 +324,12 @@ class LiveTab:
             self._say(f"Reset by {account.login}: the machine never restarts by itself")
 
     # -- rendering (feed thread) ---
-    def _set(self, key: str, value: Any, apply: Any) -> None:
+    def _set(self, key: str, value: object, apply: Callable[[Any], object]) -> None:
         if self._shown.get(key) != value:
             self._shown[key] = value
             apply(value)
 
-    def render(self, st: Any, user_name: str | None) -> None:
+    def render(self, st: LiveState, user_name: str | None) -> None:
         status = status_markdown(st, user_name)
         self._set("status", status, lambda v: setattr(self.status, "content", v))
         self._set("log", "  \n".join(st.log) or " ", lambda v: setattr(self.log, "content", v))
@@ -339,7 +349,7 @@ class LiveTab:
                 lambda v: setattr(self.setup, "content", v),
             )
 
-    def users_changed(self, options: tuple[str, ...], select: Any) -> None:
+    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
         if not self.control:
             return
         current = self.user.value
@@ -348,6 +358,6 @@ class LiveTab:
             self.user.value = current
         self.ctx.background(self._show_optimum)
 
-    def session_finished(self, record: Any) -> None:
+    def session_finished(self, record: SessionRecord) -> None:
         if self.control:
             self._show_optimum()

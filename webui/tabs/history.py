@@ -6,11 +6,10 @@ I/O threads, never on viser's loop nor the web process's."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+import viser
 
-from sessions.store import NotFoundError
+from sessions.store import NotFoundError, SessionRecord, UserRecord
 from sessions.telemetry import NAMES
 from webui.charts import HISTORY_POINTS, SessionCharts, plottable, trend_chart, trend_scales
 from webui.context import Context
@@ -19,13 +18,13 @@ NO_SESSIONS = "(no sessions)"
 SESSION_LIMIT = 50
 
 
-def session_label(s: Any) -> str:
+def session_label(s: SessionRecord) -> str:
     optimum = f" · {s.optimum_w:.3f} rad/s" if s.optimum_w is not None else ""
     when = s.started_at.strftime("%Y-%m-%d %H:%M")
     return f"#{s.id} · {when} · {s.status}{optimum}"
 
 
-def session_markdown(s: Any) -> str:
+def session_markdown(s: SessionRecord) -> str:
     cfg = s.config
     seeker = cfg.get("seeker", {}) if isinstance(cfg, dict) else {}
     controller = cfg.get("controller", {}) if isinstance(cfg, dict) else {}
@@ -47,7 +46,7 @@ def session_markdown(s: Any) -> str:
 
 
 class HistoryTab:
-    def __init__(self, gui: Any, ctx: Context) -> None:
+    def __init__(self, gui: viser.GuiApi, ctx: Context) -> None:
         self.ctx = ctx
         self.user = gui.add_dropdown("History of", ctx.user_options())
         self.summary = gui.add_markdown("Pick a user.")
@@ -116,14 +115,14 @@ class HistoryTab:
         )
         self.charts.show({name: data.columns[i] for i, name in enumerate(NAMES)})
 
-    def users_changed(self, options: tuple[str, ...], select: Any) -> None:
+    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
         current = self.user.value
         self.user.options = options
         if current in options and self.user.value != current:
             self.user.value = current
         self.ctx.background(self.load_user)
 
-    def session_finished(self, record: Any) -> None:
+    def session_finished(self, record: SessionRecord) -> None:
         user = self.ctx.user_by_label(self.user.value)
         if user is not None and user.id == record.user_id:
             self.load_user()

@@ -1,4 +1,4 @@
-"""``ergoseek``: the command line. Each subcommand lives in :mod:`server.commands` and
+"""``ergoseek``: the command line. Each subcommand lives in a module of this package and
 registers itself; heavy imports happen only when a subcommand runs.
 
 Errors the user can fix (a bad scenario, a missing file, a wrong flag) print one line on
@@ -12,7 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-# Modules under server.commands, each with ``register(subparsers)``.
+# Modules of this package, each with ``register(subparsers)``.
 COMMANDS: tuple[str, ...] = (
     "simulate", "reproduce", "run", "emulate-odrive", "serve", "demo", "account", "db",
 )  # fmt: skip
@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"server.commands.{name.replace('-', '_')}").register(sub)
+        importlib.import_module(f"server.cli.{name.replace('-', '_')}").register(sub)
     return parser
 
 
@@ -45,9 +45,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
-
-
-if __name__ == "__main__":  # `python -m server.cli` runs `python -m server` (the importable cli)
-    import runpy
-
-    runpy.run_module("server", run_name="__main__")

@@ -1,6 +1,6 @@
 """The Users tab (trainers only): add a user or edit one — name, notes, body mass, limb, and
-the simulated person who stands in for them on the simulated machine. Input is validated by
-the same models as the REST API (``server.schemas.UserIn`` / ``UserPatch``)."""
+the simulated person who stands in for them on the simulated machine. Input is validated and
+saved as the REST API does it (:mod:`server.service.users`)."""
 
 from __future__ import annotations
 
@@ -10,16 +10,16 @@ from typing import Any
 import viser
 from pydantic import ValidationError
 
-from server.schemas import UserIn, UserPatch
+from server.service.users import UserIn, UserPatch, create_user, update_user
 from sessions.config import UserConfig
-from sessions.store import NotFoundError, StoreValueError
+from sessions.store import NotFoundError, StoreValueError, UserRecord
 from webui.context import Context, user_label
 
 NEW_USER = "+ new user"
 
 
 class UsersTab:
-    def __init__(self, gui: Any, server: Any, ctx: Context) -> None:
+    def __init__(self, gui: viser.GuiApi, server: viser.ViserServer, ctx: Context) -> None:
         self.server = server
         self.ctx = ctx
         self.profile = gui.add_dropdown("Profile", (NEW_USER, *self._existing()))
@@ -97,27 +97,19 @@ class UsersTab:
     def _say(self, text: str) -> None:
         self.message.content = f"{time.strftime('%H:%M:%S')} {text}"
 
-    def _on_save(self, event: Any) -> None:
+    def _on_save(self, event: viser.GuiEvent) -> None:
         account = self.ctx.bridge.trainer(self.server, event.client_id)
         if account is None:
             self._say("Not saved: only a logged-in trainer may edit users")
             return
         picked = self.ctx.user_by_label(self.profile.value)
-        users = self.ctx.store.users
+        store = self.ctx.store
         try:
             if picked is None:
-                body = UserIn.model_validate(self._fields())
-                record = users.create(
-                    body.name,
-                    notes=body.notes,
-                    body_mass_kg=body.body_mass_kg,
-                    limb=body.limb,
-                    sim_profile=body.sim_profile,
-                )
+                record = create_user(store, UserIn.model_validate(self._fields()))
                 verb = "Added"
             else:
-                patch = UserPatch.model_validate(self._fields())
-                record = users.update(picked.id, **patch.model_dump(exclude_unset=True))
+                record = update_user(store, picked.id, UserPatch.model_validate(self._fields()))
                 verb = "Saved"
         except ValidationError as exc:
             err = exc.errors()[0]
@@ -130,7 +122,7 @@ class UsersTab:
         self.ctx.refresh_users(select=record)
         self._say(f"{verb} user **{record.name}** (#{record.id})")
 
-    def users_changed(self, options: tuple[str, ...], select: Any) -> None:
+    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
         existing = tuple(o for o in options if self.ctx.user_by_label(o) is not None)
         current = self.profile.value
         self.profile.options = (NEW_USER, *existing)
