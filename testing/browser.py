@@ -10,13 +10,20 @@ import contextlib
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import httpx
+import viser
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect
 
 from testing.server import ServerProcess, free_port
+
+if TYPE_CHECKING:
+    from playwright.sync_api import Browser, BrowserContext, Locator, Page
 
 CHROMIUM = os.environ.get("ERGOSEEK_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -31,6 +38,8 @@ CHROMIUM_ARGS = [
 ]
 VIEWPORT = {"width": 1500, "height": 950}
 TRAINER = "demo"
+SUBPROTOCOL = f"viser-v{viser.__version__}"
+UI_TIMEOUT = 30_000  # ms, for anything the page must show
 
 
 class DemoServer(ServerProcess):
@@ -68,7 +77,7 @@ class DemoServer(ServerProcess):
 
 
 @contextlib.contextmanager
-def chromium(nice: int = 0) -> Iterator[Any]:
+def chromium(nice: int = 0) -> Iterator[Browser]:
     """A headless Debian Chromium driven by Playwright; ``nice`` > 0 runs it (and every
     process it starts) at that niceness, through a wrapper script."""
     from playwright.sync_api import sync_playwright
@@ -87,7 +96,7 @@ def chromium(nice: int = 0) -> Iterator[Any]:
             browser.close()
 
 
-def login(page: Any, base: str, name: str, password: str, timeout: float = 60.0) -> None:
+def login(page: Page, base: str, name: str, password: str, timeout: float = 60.0) -> None:
     """Sign in on ``/`` and wait for the dashboard to be connected (its tabs are there)."""
     page.goto(base + "/")
     page.get_by_label("Login").fill(name)
@@ -97,7 +106,7 @@ def login(page: Any, base: str, name: str, password: str, timeout: float = 60.0)
     page.get_by_role("tab", name="Live", exact=True).wait_for(timeout=timeout * 1e3)
 
 
-def text_field(page: Any, label: str) -> Any:
+def text_field(page: Page, label: str) -> Locator:
     """A viser text input by its label. (viser 1.1.1 labels text inputs with ``for`` = the
     handle's uuid but gives the input Mantine's own id, so ``get_by_label`` misses them;
     number inputs are fine.)"""
@@ -110,7 +119,7 @@ READOUT = re.compile(
 )  # the live readout above the charts
 
 
-def readout(page: Any) -> dict[str, float | None] | None:
+def readout(page: Page) -> dict[str, float | None] | None:
     """The live readout's t and u (motor torque written), or None before any data."""
     texts = page.locator("p", has_text="t = ").all_inner_texts()
     for text in texts:
@@ -119,3 +128,69 @@ def readout(page: Any) -> dict[str, float | None] | None:
             u = m.group("u")
             return {"t": float(m.group("t")), "u": None if u == "—" else float(u)}
     return None
+
+
+# -- what a user does on the page, and what the tests wait for ------------------------------
+def cookie_of(context: BrowserContext) -> str:
+    """The login cookie a browser context holds."""
+    return next(c["value"] for c in context.cookies() if c["name"] == "ergoseek_session")
+
+
+def ws_status(url: str, headers: dict[str, str]) -> int:
+    """101 if the dashboard WebSocket was accepted (and sent viser's first frame), else the
+    HTTP status the handshake was refused with."""
+    try:
+        with connect(
+            url,
+            subprotocols=[SUBPROTOCOL],
+            additional_headers=headers,
+            max_size=2**26,
+            open_timeout=10,
+        ) as ws:
+            assert ws.subprotocol == SUBPROTOCOL
+            first = ws.recv(timeout=10)
+            assert isinstance(first, bytes) and first
+            return 101
+    except InvalidStatus as exc:
+        return exc.response.status_code
+
+
+def pick(page: Page, combobox: str, option: str) -> None:
+    page.get_by_role("combobox", name=combobox, exact=True).click()
+    page.get_by_role("option", name=option, exact=True).click()
+
+
+def set_number(page: Page, label: str, value: float) -> None:
+    box = page.get_by_label(label, exact=True)
+    box.fill(f"{value:g}")
+    box.press("Tab")
+
+
+def wait_text(page: Page, pattern: str, timeout_ms: int = UI_TIMEOUT) -> re.Match[str]:
+    """Wait until a paragraph matches ``pattern``; returns the match."""
+    rx = re.compile(pattern)
+    deadline = time.monotonic() + timeout_ms / 1e3
+    while True:
+        for text in page.locator("p").all_inner_texts():
+            m = rx.search(text)
+            if m:
+                return m
+        if time.monotonic() > deadline:
+            shown = "\n".join(page.locator("p").all_inner_texts())
+            raise AssertionError(f"no paragraph matched {pattern!r} in:\n{shown}")
+        time.sleep(0.2)
+
+
+Readout = dict[str, float | None]
+
+
+def wait_readout(page: Page, until: Callable[[Readout], bool], timeout_s: float = 30.0) -> Readout:
+    """Wait until the live readout satisfies ``until``; returns it."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        r = readout(page)
+        if r is not None and until(r):
+            return r
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the live readout never satisfied the condition (last {r})")
+        time.sleep(0.2)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -25,9 +26,8 @@ objective = "surrogate"
 """
 
 
-def test_simulate_json_and_csv(tmp_path: Path) -> None:
-    scenario = tmp_path / "s.toml"
-    scenario.write_text(SCENARIO)
+def test_simulate_json_and_csv(tmp_path: Path, scenario_file: Callable[..., Path]) -> None:
+    scenario = scenario_file(SCENARIO)
     out = tmp_path / "t.csv"
     proc = ergoseek("simulate", str(scenario), "--json", "--csv", str(out))
     assert proc.returncode == 0, proc.stderr
@@ -57,9 +57,10 @@ def test_simulate_json_and_csv(tmp_path: Path) -> None:
         ("[machine\ninertia = 1", "not valid TOML"),
     ],
 )
-def test_bad_scenarios_exit_2_naming_the_key(tmp_path: Path, text: str, key: str) -> None:
-    scenario = tmp_path / "bad.toml"
-    scenario.write_text(text)
+def test_bad_scenarios_exit_2_naming_the_key(
+    scenario_file: Callable[..., Path], text: str, key: str
+) -> None:
+    scenario = scenario_file(text, "bad.toml")
     proc = ergoseek("simulate", str(scenario))
     assert proc.returncode == 2
     assert key in proc.stderr

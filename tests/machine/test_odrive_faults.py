@@ -25,12 +25,6 @@ CFG = parse_session_config({"duration": 30.0})
 TIMEOUT = 0.02
 
 
-@pytest.fixture(scope="module")
-def emu():
-    with EmulatorProcess(EmulatorConfig()) as e:
-        yield e
-
-
 def armed(emu, **spec):
     m = make_machine(MachineSpec(kind="odrive", device=emu.path, reply_timeout=TIMEOUT, **spec))
     m.connect()

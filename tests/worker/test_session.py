@@ -27,14 +27,6 @@ from testing.live import follow, scenario
 NCH = 10  # the engine's telemetry channels come first in a ring record
 
 
-@pytest.fixture(scope="module")
-def worker():
-    with Worker(options=WorkerOptions()) as w:
-        ready = w.start()
-        assert ready is not None and ready.fault is None and ready.machine == "sim"
-        yield w
-
-
 def offline_summary(cfg):
     m = SimMachine()
     m.connect()
