@@ -93,7 +93,6 @@ class LiveTab:
         self.server = server
         self.ctx = ctx
         self.control = control
-        settings = ctx.settings
         self.status = gui.add_markdown("Machine: **starting**")
         self._shown: dict[str, Any] = {}
         self._starting = False
@@ -106,58 +105,61 @@ class LiveTab:
             )
             self.estop.on_click(self._on_estop)
             with gui.add_folder("Session setup"):
-                self.user = gui.add_dropdown("User", ctx.user_options())
-                self.optimum = gui.add_markdown("Stored optimum: —")
-                self.preset = gui.add_dropdown("Preset", tuple(PRESETS))
-                self.duration = gui.add_number(
-                    "Duration (s)", DEFAULT_DURATION, min=1.0, max=3600.0, step=1.0
-                )
-                self.controller = gui.add_dropdown("Controller", tuple(CONTROLLERS))
-                self.controller_help = gui.add_markdown(CONTROLLERS["rise"])
-                self.seeker = gui.add_dropdown("Seeker", SEEKERS)
-                self.objective = gui.add_dropdown("Objective", ("power", "surrogate"))
-                self.bracket_mode = gui.add_dropdown("Bracket", (BRACKET_AUTO, BRACKET_CUSTOM))
-                self.g1 = gui.add_number("γ1 (rad/s)", 1.0, min=0.05, max=100.0, step=0.01)
-                self.g2 = gui.add_number("γ2 (rad/s)", 3.5, min=0.05, max=100.0, step=0.01)
-                self.g3 = gui.add_number("γ3 (rad/s)", 6.0, min=0.05, max=100.0, step=0.01)
-                defaults = ControllerConfig()
-                with gui.add_folder("Gains", expand_by_default=False):
-                    gain = {"min": 0.001, "step": 0.001}
-                    self.ks = gui.add_number("ks", defaults.ks, **gain)
-                    self.beta = gui.add_number("β1+β2 (N·m/s)", defaults.beta, **gain)
-                    self.alpha_r = gui.add_number("αr (1/s)", defaults.alpha_r, **gain)
-                    self.k = gui.add_number("k (N·m·s/rad)", defaults.k, **gain)
-                with gui.add_folder("Limits", expand_by_default=False):
-                    self.max_torque = gui.add_number(
-                        "Max torque (N·m)",
-                        float(settings.max_torque),
-                        min=0.1,
-                        max=float(settings.max_torque),
-                        step=0.1,
-                    )
-                    self.max_velocity = gui.add_number(
-                        "Max velocity (rad/s)",
-                        float(settings.max_velocity),
-                        min=0.5,
-                        max=float(settings.max_velocity),
-                        step=0.1,
-                    )
-            self.start = gui.add_button("Start", color="green", icon=viser.Icon.PLAYER_PLAY)
-            self.stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=True)
-            self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=True)
-            self.message = gui.add_markdown(" ")
-            self.start.on_click(self._on_start)
-            self.stop.on_click(self._on_stop)
-            self.reset.on_click(self._on_reset)
-            self.user.on_update(lambda _: ctx.background(self._show_optimum))
-            self.preset.on_update(lambda _: self._apply_preset())
-            self.bracket_mode.on_update(lambda _: ctx.background(self._show_optimum))
-            self.max_velocity.on_update(lambda _: ctx.background(self._show_optimum))
-            self.controller.on_update(lambda _: self._show_controller())
+                self._build_setup(gui)
+            self._build_actions(gui)
             self._stored: SetpointRecord | None = None
         else:
             self.setup = gui.add_markdown("Viewer: the dashboard without controls.")
         self.log = gui.add_markdown(" ")
+
+    def _build_setup(self, gui: viser.GuiApi) -> None:
+        """The session's user, preset, controller, seeker, bracket, gains and limits."""
+        ctx, settings = self.ctx, self.ctx.settings
+        self.user = gui.add_dropdown("User", ctx.user_options())
+        self.optimum = gui.add_markdown("Stored optimum: —")
+        self.preset = gui.add_dropdown("Preset", tuple(PRESETS))
+        self.duration = gui.add_number(
+            "Duration (s)", DEFAULT_DURATION, min=1.0, max=3600.0, step=1.0
+        )
+        self.controller = gui.add_dropdown("Controller", tuple(CONTROLLERS))
+        self.controller_help = gui.add_markdown(CONTROLLERS["rise"])
+        self.seeker = gui.add_dropdown("Seeker", SEEKERS)
+        self.objective = gui.add_dropdown("Objective", ("power", "surrogate"))
+        self.bracket_mode = gui.add_dropdown("Bracket", (BRACKET_AUTO, BRACKET_CUSTOM))
+        g = {"min": 0.05, "max": 100.0, "step": 0.01}
+        lo, mid, hi = SeekerConfig().bracket
+        self.g1 = gui.add_number("γ1 (rad/s)", lo, **g)
+        self.g2 = gui.add_number("γ2 (rad/s)", mid, **g)
+        self.g3 = gui.add_number("γ3 (rad/s)", hi, **g)
+        defaults = ControllerConfig()
+        with gui.add_folder("Gains", expand_by_default=False):
+            gain = {"min": 0.001, "step": 0.001}
+            self.ks = gui.add_number("ks", defaults.ks, **gain)
+            self.beta = gui.add_number("β1+β2 (N·m/s)", defaults.beta, **gain)
+            self.alpha_r = gui.add_number("αr (1/s)", defaults.alpha_r, **gain)
+            self.k = gui.add_number("k (N·m·s/rad)", defaults.k, **gain)
+        with gui.add_folder("Limits", expand_by_default=False):
+            top_u, top_w = float(settings.max_torque), float(settings.max_velocity)
+            self.max_torque = gui.add_number(
+                "Max torque (N·m)", top_u, min=0.1, max=top_u, step=0.1
+            )
+            self.max_velocity = gui.add_number(
+                "Max velocity (rad/s)", top_w, min=0.5, max=top_w, step=0.1
+            )
+        self.user.on_update(lambda _: ctx.background(self._show_optimum))
+        self.preset.on_update(lambda _: self._apply_preset())
+        self.bracket_mode.on_update(lambda _: ctx.background(self._show_optimum))
+        self.max_velocity.on_update(lambda _: ctx.background(self._show_optimum))
+        self.controller.on_update(lambda _: self._show_controller())
+
+    def _build_actions(self, gui: viser.GuiApi) -> None:
+        self.start = gui.add_button("Start", color="green", icon=viser.Icon.PLAYER_PLAY)
+        self.stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=True)
+        self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=True)
+        self.message = gui.add_markdown(" ")
+        self.start.on_click(self._on_start)
+        self.stop.on_click(self._on_stop)
+        self.reset.on_click(self._on_reset)
 
     # -- setup ---
     def _show_controller(self) -> None:
