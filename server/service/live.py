@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import math
 from collections import deque
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -128,7 +129,10 @@ class LiveHub:
         return frame
 
 
-async def serve_subscription(hub: LiveHub, sub: Subscription, send: Any) -> None:
+Send = Callable[[dict[str, Any]], Awaitable[None]]
+
+
+async def serve_subscription(hub: LiveHub, sub: Subscription, send: Send) -> None:
     """Send a subscription's frames until cancelled: events as they come, telemetry at most
     FRAME_RATE_MAX times a second. ``send`` is the WebSocket's ``send_json``-like coroutine."""
     # up to FRAME_RATE_MAX samples a second, each goes out as it comes (the decimation sets
