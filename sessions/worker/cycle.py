@@ -64,14 +64,17 @@ class SessionCycle:
         ring, hdr, events = host.ring, host.ring.hdr, host.events
         rwrite, mono, mono_ns = ring.write, time.monotonic, time.monotonic_ns
         record = pacer.timing.record
+        poll = host.cmd_poll.poll
         next_timing = mono() + self.timing_interval
         pacer.start()
         while True:
             now, late = pacer.wait()
             self.cycles = cycles = self.cycles + 1
-            end, flags = self.commands(now, cycles)
-            if end is not None:
-                return self.last_record(end, flags, late, now)
+            ready = poll(0)
+            if ready or host.terminated or not cycles & PARENT_CHECK_MASK:
+                end, flags = self.commands(now, cycles, bool(ready))
+                if end is not None:
+                    return self.last_record(end, flags, late, now)
             try:
                 q, w, tau = read()
                 u = self.update(q, w, tau, now)
@@ -93,12 +96,13 @@ class SessionCycle:
             if events.pending:
                 events.flush()
 
-    def commands(self, now: float, cycles: int) -> tuple[End | None, int]:
-        """A pending command, then the process's own state: how the session ends now, if it
-        does, and the flags of its last record."""
+    def commands(self, now: float, cycles: int, ready: bool) -> tuple[End | None, int]:
+        """A pending command (``ready``), then the process's own state: how the session ends
+        now, if it does, and the flags of its last record. (Called only when there is
+        something to look at: a command, SIGTERM, or the parent check every 8 cycles.)"""
         host, sup = self.host, self.supervisor
         end, flags = None, 0
-        if host.cmd_poll.poll(0):
+        if ready:
             try:
                 end, flags = sup.command(host.cmds.recv(), now)
             except (EOFError, OSError):
