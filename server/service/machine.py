@@ -24,7 +24,7 @@ from pydantic import BaseModel
 from server.service.live import LiveHub
 from server.service.pump import Pump
 from server.service.session import ActiveSession, LiveSession
-from sessions.codes import LATCHED, phase_name
+from sessions.codes import phase_name
 from sessions.machine.spec import MachineSpec
 from sessions.requests import Rig, SessionStart, session_config
 from sessions.store import ConflictError, SessionRecord, Store
@@ -54,10 +54,6 @@ class MachineStatus(BaseModel):
     rate_hz: float
     timing: dict[str, float | int] | None
     realtime: dict[str, object] | None
-
-    @property
-    def latched(self) -> bool:
-        return self.state in LATCHED
 
 
 class Live(BaseModel):
