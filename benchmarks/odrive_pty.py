@@ -30,7 +30,7 @@ import numpy as np
 from sessions.config import parse_session_config
 from sessions.loop import Loop
 from sessions.machine import MachineSpec, make_machine
-from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
+from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
 
 
@@ -108,7 +108,7 @@ def main() -> None:
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
     with EmulatorProcess(EmulatorConfig()) as emu:
-        limits = {"timeout": args.timeout, "watchdog_timeout": args.watchdog}
+        limits = {"reply_timeout": args.timeout, "watchdog_timeout": args.watchdog}
         spec = MachineSpec(
             kind="odrive", device=emu.path, **{k: v for k, v in limits.items() if v is not None}
         )
@@ -117,7 +117,7 @@ def main() -> None:
             f"{rate:g}": paced(emu.path, args.seconds, rate, not args.no_realtime, spec)
             for rate in (1000.0, 500.0)
         }
-        out["reply_timeout_s"] = spec.timeout
+        out["reply_timeout_s"] = spec.reply_timeout
         out["watchdog_timeout_s"] = spec.watchdog_timeout
     p500 = out["paced"]["500"]  # type: ignore[index]
     out["target_500hz_met"] = bool(

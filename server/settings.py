@@ -1,24 +1,47 @@
 """Server settings: ``ERGOSEEK_*`` environment variables, an optional TOML file, CLI flags.
 
 Precedence, highest first: command-line flags (passed as init arguments), environment
-variables, the config file named by ``--config`` or ``ERGOSEEK_CONFIG``, the defaults below.
+variables, the config file named by ``--config`` or ``ERGOSEEK_CONFIG``, the defaults.
 There are no default passwords anywhere: accounts are created with ``ergoseek account create``
 (or by ``ergoseek demo``, which prints or takes ``ERGOSEEK_DEMO_PASSWORD``).
+
+One Settings, one definition per setting: the machine's keys (``inertia``, ``max_torque``,
+``max_velocity``, ``rate``) are the engine's fields (:class:`sessions.config.MachineConfig`,
+:class:`sessions.config.SessionConfig`), the drive's (``gear_ratio``, ``direction``,
+``reply_timeout``, ``watchdog_timeout``) are :class:`sessions.machine.MachineSpec`'s, taken with
+their defaults, bounds and descriptions (the server adds only its own caps). The worker's
+options are nested as they are (``worker.cpu``, ``ERGOSEEK_WORKER__CPU``). What the service
+runs on is built from them: :meth:`Settings.rig`, :meth:`Settings.machine_spec`.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, field_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
+from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
+from sessions.config import MachineConfig, SessionConfig
+from sessions.machine.spec import Direction, MachineSpec
+from sessions.requests import Rig
 from sessions.store.database import SQLITE_FILENAME
+from sessions.worker.options import LIVE_RATE_MAX, WorkerOptions
 
 MachineKind = Literal["sim", "odrive", "odrive-emulator"]
+SERVER_MAX_TORQUE = 200.0  # N·m: the most any machine this server drives may be set to
+SERVER_MAX_VELOCITY = 100.0  # rad/s
+
+
+def owned(model: type[BaseModel], name: str, **caps: float) -> Any:
+    """The field ``name`` as ``model`` defines it (default, bounds, description), with the
+    server's extra ``caps``: a setting defined once, where it belongs."""
+    info = model.model_fields[name]
+    return FieldInfo.merge_field_infos(info, Field(**caps)) if caps else copy.copy(info)
 
 
 class TomlFileSource(PydanticBaseSettingsSource):
@@ -44,7 +67,9 @@ class TomlFileSource(PydanticBaseSettingsSource):
 
 
 class Settings(BaseSettings):
-    model_config = SettingsConfigDict(env_prefix="ERGOSEEK_", extra="forbid", frozen=True)
+    model_config = SettingsConfigDict(
+        env_prefix="ERGOSEEK_", env_nested_delimiter="__", extra="forbid", frozen=True
+    )
 
     config: str | None = Field(None, description="TOML file with any of these settings")
     host: str = Field("127.0.0.1", description="address the web server binds")
@@ -53,20 +78,19 @@ class Settings(BaseSettings):
         None, description="SQLAlchemy URL; default: SQLite in the data directory"
     )
     data_dir: str | None = Field(None, description="where the default SQLite file lives")
+    # the machine
     machine: MachineKind = Field("sim", description="the worker's machine backend")
     device: str | None = Field(None, description="serial device for --machine odrive")
-    rate: float = Field(1000.0, ge=50.0, le=5000.0, description="control loop rate, Hz")
-    max_torque: float = Field(20.0, gt=0, le=200.0, description="machine torque limit, N·m")
-    max_velocity: float = Field(15.0, gt=0, le=100.0, description="machine velocity limit, rad/s")
-    inertia: float = Field(0.1, gt=0, description="machine inertia J, kg·m²")
-    gear_ratio: float = Field(1.0, gt=0, description="ODrive: motor turns per handle turn")
-    direction: Literal[1, -1] = Field(1, description="ODrive: +1 or -1")
-    reply_timeout: float = Field(
-        0.02, gt=0, le=1.0, description="ODrive: longest wait for a reply before a fault, s"
-    )
-    watchdog_timeout: float = Field(
-        0.05, gt=0, le=1.0, description="ODrive: the device's own watchdog, s (fed every cycle)"
-    )
+    rate: float = owned(SessionConfig, "rate", le=LIVE_RATE_MAX)
+    max_torque: float = owned(MachineConfig, "max_torque", le=SERVER_MAX_TORQUE)
+    max_velocity: float = owned(MachineConfig, "max_velocity", le=SERVER_MAX_VELOCITY)
+    inertia: float = owned(MachineConfig, "inertia")
+    gear_ratio: float = owned(MachineSpec, "gear_ratio")
+    direction: Direction = owned(MachineSpec, "direction")
+    reply_timeout: float = owned(MachineSpec, "reply_timeout")
+    watchdog_timeout: float = owned(MachineSpec, "watchdog_timeout")
+    worker: WorkerOptions = Field(default_factory=WorkerOptions, description="the worker")
+    # logins
     session_hours: float = Field(12.0, gt=0, le=24 * 30, description="login lifetime, h")
     cookie_secure: bool = Field(False, description="mark the login cookie Secure (behind TLS)")
     allowed_origins: list[str] = Field(
@@ -74,6 +98,7 @@ class Settings(BaseSettings):
     )
     login_attempts: int = Field(5, ge=1, description="failed logins allowed per window")
     login_window_s: float = Field(300.0, gt=0, description="failed-login window, s")
+    # what is served
     dashboard: bool = Field(True, description="serve the login page and the viser dashboard")
     demo: bool = Field(False, description="demo mode: simulated users seeded")
 
@@ -85,6 +110,36 @@ class Settings(BaseSettings):
         if self.data_dir:
             return f"sqlite:///{Path(self.data_dir).expanduser().resolve() / SQLITE_FILENAME}"
         return None
+
+    def machine_config(self) -> MachineConfig:
+        """The machine every session gets (a request may lower its limits)."""
+        return MachineConfig(
+            inertia=self.inertia, max_torque=self.max_torque, max_velocity=self.max_velocity
+        )
+
+    def machine_spec(self, device: str | None = None) -> MachineSpec:
+        """What the worker drives: the simulator, or an ODrive at ``device`` (default: the
+        configured one; the emulator's pty for ``odrive-emulator``)."""
+        if self.machine == "sim":
+            return MachineSpec(kind="sim")
+        return MachineSpec(
+            kind="odrive",
+            device=device or self.device,
+            gear_ratio=self.gear_ratio,
+            direction=self.direction,
+            reply_timeout=self.reply_timeout,
+            watchdog_timeout=self.watchdog_timeout,
+        )
+
+    def rig(self, spec: MachineSpec) -> Rig:
+        """The machine ``spec`` drives, as the request policy sees it (:mod:`sessions.requests`)."""
+        return Rig(self.machine, self.machine_config(), self.rate, spec.has_torque_sensor)
+
+    @model_validator(mode="after")
+    def _drive(self) -> Settings:
+        if self.machine != "sim":  # the drive's settings must make a spec (checked now, not later)
+            self.machine_spec(self.device or "(the emulator's pty)")
+        return self
 
     @field_validator("device")
     @classmethod

@@ -183,8 +183,9 @@ class ScenarioError(ValueError):
     """A scenario that cannot be used, with a one-line reason naming the key."""
 
 
-def describe_validation_error(exc: ValidationError) -> str:
-    """One line per problem: ``key.path: reason``."""
+def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    """``(key.path, reason)`` per problem (a model-level check names its key in its message,
+    ``"seeker.bracket: …"``; it is taken from there)."""
     parts = []
     for err in exc.errors():
         path = [str(x) for x in err["loc"]]
@@ -200,8 +201,13 @@ def describe_validation_error(exc: ValidationError) -> str:
             msg = "unknown key"
         elif err["type"] != "value_error" and "input" in err and not isinstance(err["input"], dict):
             msg = f"{msg} (got {err['input']!r})"
-        parts.append(f"{loc}: {msg}")
-    return "; ".join(parts)
+        parts.append((loc, msg))
+    return parts
+
+
+def describe_validation_error(exc: ValidationError) -> str:
+    """One line for every problem: ``key.path: reason; …``."""
+    return "; ".join(f"{key}: {reason}" for key, reason in validation_problems(exc))
 
 
 def parse_session_config(data: dict[str, Any]) -> SessionConfig:

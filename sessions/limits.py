@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import math
 
-TORQUE_LIMIT = 1
-VELOCITY_LIMIT = 2
+from sessions.codes import TORQUE_LIMIT, VELOCITY_LIMIT
+
+__all__ = ["GOVERNOR_SPAN", "TORQUE_LIMIT", "VELOCITY_LIMIT", "Limits"]
+
 GOVERNOR_SPAN = 0.5  # rad/s of overspeed for full braking torque
 
 

@@ -4,14 +4,13 @@ returns and the dashboard shows. Built from a loop at the end of a session (or a
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from sessions.loop import Loop
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-SessionStatus = Literal["running", "completed", "stopped", "aborted", "faulted"]
 
 
 class SessionSummary(BaseModel):

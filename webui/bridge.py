@@ -3,8 +3,8 @@
 viser runs its own asyncio loop in a daemon thread and calls plain (non-async) GUI callbacks
 on its thread pool. Nothing here ever blocks viser's loop: callbacks that act are plain
 functions (so they run on viser's pool), and they hand the action to the web process's event
-loop, where :class:`server.control.Control` lives (it is not thread-safe: its worker pipe and
-session state belong to that loop). Store calls run on the calling pool thread.
+loop, where :class:`server.service.MachineService` lives (it is not thread-safe: its worker
+pipe and session state belong to that loop). Store calls run on the calling pool thread.
 
 Who clicked: viser's ``ClientHandle`` carries no request, so the proxy (``webui.proxy``) adds
 two headers to its upstream connection: a per-process secret and the account id. A callback
@@ -22,7 +22,11 @@ import secrets
 from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
-from server.auth import RANK
+import viser
+
+from server.runtime import Runtime
+from server.service import MachineService
+from sessions.codes import RANK
 from sessions.store import AccountRecord, NotFoundError, Store
 
 log = logging.getLogger("ergoseek.dashboard")
@@ -35,7 +39,7 @@ T = TypeVar("T")
 
 
 class Bridge:
-    def __init__(self, runtime: Any, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, runtime: Runtime, loop: asyncio.AbstractEventLoop) -> None:
         self.runtime = runtime
         self.loop = loop
         self.secret = secrets.token_urlsafe(32)
@@ -45,8 +49,10 @@ class Bridge:
         return self.runtime.store
 
     @property
-    def control(self) -> Any:
-        return self.runtime.control
+    def machine(self) -> MachineService:
+        """The machine service: call it on the web process's loop (:meth:`run`, :meth:`call`,
+        :meth:`soon`), never from a GUI thread directly."""
+        return self.runtime.machine
 
     # -- crossing to the web process's loop ---
     def run(self, coro: Coroutine[Any, Any, T], timeout: float = ACTION_TIMEOUT) -> T:
@@ -69,12 +75,12 @@ class Bridge:
     def upstream_headers(self, account: AccountRecord) -> dict[str, str]:
         return {PROXY_HEADER: self.secret, ACCOUNT_HEADER: str(account.id)}
 
-    def proxied_account_id(self, server: Any, client_id: int | None) -> int | None:
+    def proxied_account_id(self, server: viser.ViserServer, client_id: int | None) -> int | None:
         """The account id the proxy vouched for on this viser connection (no I/O)."""
         if client_id is None:
             return None
         try:
-            conn = server._websock_server._live_connections.get(client_id)
+            conn = server._websock_server._live_connections.get(client_id)  # type: ignore[attr-defined]
             headers = conn.request.headers if conn is not None else None
         except AttributeError:  # a viser without these internals: nobody may act
             log.error("viser internals changed: dashboard actions are refused")
@@ -88,7 +94,7 @@ class Bridge:
         except ValueError:
             return None
 
-    def trainer(self, server: Any, client_id: int | None) -> AccountRecord | None:
+    def trainer(self, server: viser.ViserServer, client_id: int | None) -> AccountRecord | None:
         """The clicking account if it may act (trainer or admin, enabled); store I/O: call it
         from a thread."""
         account_id = self.proxied_account_id(server, client_id)

@@ -1,6 +1,7 @@
-"""What every part of the dashboard shares: the web process's runtime, the bridge to its loop,
-a small thread pool for store reads the GUI triggers, the directory of users (for the pickers)
-and the list of views (one per viser server) to refresh together."""
+"""What every part of the dashboard shares: the web process's runtime (typed: its settings,
+store and machine service), the bridge to its loop, a small thread pool for store reads the
+GUI triggers, the directory of users (for the pickers) and the views (one per viser server)
+to refresh together."""
 
 from __future__ import annotations
 
@@ -9,10 +10,15 @@ import logging
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sessions.store import UserRecord
+from server.runtime import Runtime
+from server.settings import Settings
+from sessions.store import SessionRecord, Store, UserRecord
 from webui.bridge import Bridge
+
+if TYPE_CHECKING:
+    from webui.views import View
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -25,20 +31,20 @@ def user_label(user: UserRecord) -> str:
 
 
 class Context:
-    def __init__(self, runtime: Any, bridge: Bridge) -> None:
+    def __init__(self, runtime: Runtime, bridge: Bridge) -> None:
         self.runtime = runtime
         self.bridge = bridge
-        self.settings = runtime.settings
+        self.settings: Settings = runtime.settings
         self.io = ThreadPoolExecutor(2, thread_name_prefix="ergoseek-dashboard-io")
-        self.views: list[Any] = []
+        self.views: list[View] = []
         self._users: list[UserRecord] = []
         self._lock = threading.Lock()
 
     @property
-    def store(self) -> Any:
+    def store(self) -> Store:
         return self.runtime.store
 
-    def background(self, fn: Callable[..., Any], *args: Any) -> None:
+    def background(self, fn: Callable[..., Any], *args: object) -> None:
         """Run ``fn`` on the dashboard's I/O threads (store reads); errors are logged."""
 
         def run() -> None:
@@ -81,7 +87,7 @@ class Context:
         """A session ended (from the feed thread): views reload what depends on it."""
 
         def reload() -> None:
-            record = self.store.sessions.get(session_id)
+            record: SessionRecord = self.store.sessions.get(session_id)
             for view in self.views:
                 view.session_finished(record)
 

@@ -23,7 +23,8 @@ from typing import Any
 
 import viser
 
-from server.auth import RANK
+from server.runtime import Runtime
+from sessions.codes import RANK
 from webui.bridge import Bridge
 from webui.context import Context
 from webui.feed import Feed
@@ -48,7 +49,7 @@ def viser_server() -> viser.ViserServer:
 
 
 class Dashboard:
-    def __init__(self, runtime: Any, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, runtime: Runtime, loop: asyncio.AbstractEventLoop) -> None:
         self.runtime = runtime
         self.loop = loop
         self.bridge = Bridge(runtime, loop)
@@ -78,7 +79,11 @@ class Dashboard:
             ]
 
         self.feed = Feed(
-            self.runtime, ctx.views, load_evaluations=evaluations, on_finished=ctx.session_finished
+            self.runtime.hub,
+            self.runtime.machine,
+            ctx.views,
+            load_evaluations=evaluations,
+            on_finished=ctx.session_finished,
         )
         for view in ctx.views:
             ctx.background(view.history.load_user)
@@ -110,7 +115,7 @@ class Dashboard:
                 server.stop()
 
 
-async def start_dashboard(app: Any, runtime: Any) -> Dashboard:
+async def start_dashboard(runtime: Runtime) -> Dashboard:
     """Called from the web process's lifespan; ``runtime.dashboard.stop()`` undoes it."""
     dashboard = Dashboard(runtime, asyncio.get_running_loop())
     try:

@@ -21,12 +21,16 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from server.service import ActiveSession, LiveHub, MachineService, MachineStatus, Subscription
 from webui.charts import SAMPLE_RATE, LiveWindow
 from webui.progress import SeekerProgressView
+
+if TYPE_CHECKING:
+    from webui.views import View
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -35,20 +39,11 @@ STATUS_EVERY = 0.25  # s between machine status reads
 LOG_LINES = 8
 
 
-@dataclass(frozen=True)
-class ActiveSession:
-    session_id: int
-    user_id: int
-    cfg: Any  # sessions.config.SessionConfig (frozen)
-    target: float | None = None
-    done: bool = False
-
-
 @dataclass
 class Snapshot:
-    rows: np.ndarray
-    events: list[dict[str, Any]]
-    status: Any | None  # server.schemas.MachineOut, when read this tick
+    rows: np.ndarray  # records (sessions.telemetry.RECORD_NAMES), as the hub holds them
+    events: list[dict[str, Any]]  # event frames, JSON-ready
+    status: MachineStatus | None  # when read this tick
     active: ActiveSession | None
 
 
@@ -59,7 +54,7 @@ class LiveState:
     window: LiveWindow = field(default_factory=LiveWindow)
     window_version: int = 0
     seeker: SeekerProgressView = field(default_factory=SeekerProgressView)
-    status: Any | None = None
+    status: MachineStatus | None = None
     status_version: int = 0
     active: ActiveSession | None = None
     last_finished: tuple[int, str] | None = None  # (session id, status)
@@ -107,13 +102,15 @@ def _sid(active: ActiveSession | None) -> int | None:
 class Feed:
     def __init__(
         self,
-        runtime: Any,
-        views: list[Any],
+        hub: LiveHub,
+        machine: MachineService,
+        views: list[View],
         *,
         load_evaluations: Callable[[int], list[dict[str, Any]]],
         on_finished: Callable[[int, str], None],
     ) -> None:
-        self.runtime = runtime
+        self.hub = hub
+        self.machine = machine
         self.views = views
         self.load_evaluations = load_evaluations
         self.on_finished = on_finished
@@ -121,14 +118,14 @@ class Feed:
         self.tick = 0
         self.thread = ThreadPoolExecutor(1, thread_name_prefix="ergoseek-dashboard-feed")
         self.task: asyncio.Task[None] | None = None
-        self.subscription: Any = None
+        self.subscription: Subscription | None = None
 
     def start(self) -> None:
         self.task = asyncio.get_running_loop().create_task(self.run(), name="ergoseek-dashboard")
 
     async def run(self) -> None:
         loop = asyncio.get_running_loop()
-        hub = self.runtime.hub
+        hub, machine = self.hub, self.machine
         sub = self.subscription = hub.subscribe(SAMPLE_RATE)
         next_status = 0.0
         try:
@@ -141,8 +138,8 @@ class Feed:
                 if started >= next_status:
                     next_status = started + STATUS_EVERY
                     with contextlib.suppress(Exception):
-                        status = self.runtime.machine_status()
-                snap = Snapshot(rows, events, status, self._active())
+                        status = machine.status()
+                snap = Snapshot(rows, events, status, machine.active_session())
                 try:
                     await loop.run_in_executor(self.thread, self.apply, snap)
                 except RuntimeError:  # the thread was shut down: we are stopping
@@ -152,13 +149,6 @@ class Feed:
                 await asyncio.sleep(max(0.0, TICK - (loop.time() - started)))
         finally:
             hub.unsubscribe(sub)
-
-    def _active(self) -> ActiveSession | None:
-        control = self.runtime.control
-        active = control.active if control is not None else None
-        if active is None:
-            return None
-        return ActiveSession(active.db_id, active.user_id, active.cfg, active.target, active.done)
 
     # -- the feed thread ---
     def apply(self, snap: Snapshot) -> None:
@@ -194,12 +184,8 @@ class Feed:
 
     def _event(self, frame: dict[str, Any]) -> None:
         st = self.state
-        if frame.get("type") == "seeker":
-            try:
-                sid = int(frame.get("session_id") or -1)
-            except (TypeError, ValueError):
-                sid = -1
-            if sid == st.seeker.session_id:
+        if frame.get("type") == "seeker":  # (the pump adds the session's database id)
+            if frame.get("db_session_id") == st.seeker.session_id:
                 st.seeker.add(frame)
             return
         text = describe_event(frame)

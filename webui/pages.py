@@ -17,7 +17,10 @@ import viser
 from fastapi import APIRouter, Request, WebSocket
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
-from server.auth import COOKIE, identify
+from server.api.deps import RuntimeDep
+from server.runtime import Runtime
+from server.security import COOKIE, identify
+from sessions.store import AccountRecord
 from webui import login_page
 from webui.proxy import dashboard_socket
 
@@ -73,17 +76,16 @@ def _serve(request: Request, relpath: str) -> Response:
     return Response(raw, media_type=kind, headers=headers)
 
 
-async def _account(request: Request):  # type: ignore[no-untyped-def]
-    runtime = request.app.state.runtime
-    if not request.cookies.get(COOKIE) or runtime.store is None:
+async def _account(request: Request, runtime: Runtime) -> AccountRecord | None:
+    if not request.cookies.get(COOKIE):
         return None
     account, _ = await asyncio.to_thread(identify, request, runtime.store)
     return account
 
 
 @router.get("/", response_class=HTMLResponse)
-async def login(request: Request) -> HTMLResponse:
-    account = None if "logout" in request.query_params else await _account(request)
+async def login(request: Request, runtime: RuntimeDep) -> HTMLResponse:
+    account = None if "logout" in request.query_params else await _account(request, runtime)
     who = f"{account.login} ({account.role})" if account is not None else None
     return HTMLResponse(login_page.render(who), headers=SECURITY_HEADERS)
 
@@ -94,14 +96,14 @@ async def dashboard_no_slash() -> RedirectResponse:
 
 
 @router.get("/dashboard/{relpath:path}")
-async def dashboard(request: Request, relpath: str) -> Response:
-    if await _account(request) is None:
+async def dashboard(request: Request, relpath: str, runtime: RuntimeDep) -> Response:
+    if await _account(request, runtime) is None:
         return RedirectResponse("/", status_code=303, headers={"Cache-Control": "no-store"})
-    if request.app.state.runtime.dashboard is None:
+    if runtime.dashboard is None:
         return Response("the dashboard is not running", status_code=503, headers=SECURITY_HEADERS)
     return await asyncio.to_thread(_serve, request, relpath)
 
 
 @router.websocket("/dashboard")
-async def dashboard_ws(ws: WebSocket) -> None:
-    await dashboard_socket(ws)
+async def dashboard_ws(ws: WebSocket, runtime: RuntimeDep) -> None:
+    await dashboard_socket(ws, runtime)

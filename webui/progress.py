@@ -15,6 +15,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import viser
+
+from sessions.config import SessionConfig
 from webui.charts import seeker_chart, seeker_data, seeker_range, seeker_scales
 
 
@@ -32,7 +35,7 @@ class SeekerProgressView:
     seen: set[float] = field(default_factory=set)  # session times of evaluations counted
     version: int = 0  # bumped on every change, so views redraw only when needed
 
-    def reset(self, session_id: int | None, cfg: Any | None) -> None:
+    def reset(self, session_id: int | None, cfg: SessionConfig | None) -> None:
         self.session_id = session_id
         self.evaluations = []
         self.seen = set()
@@ -129,7 +132,7 @@ class SeekerProgressView:
 class SeekerPanel:
     """The seeker's progress bar, its state in words and the power-vs-velocity chart."""
 
-    def __init__(self, gui: Any) -> None:
+    def __init__(self, gui: viser.GuiApi) -> None:
         self.progress = gui.add_progress_bar(0.0)
         self.text = gui.add_markdown("Seeker: no session yet.")
         self.chart = seeker_chart(gui)

@@ -22,14 +22,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Any
 
 from fastapi import WebSocket, status
 from starlette.websockets import WebSocketDisconnect
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from server.auth import COOKIE, bearer, identify, origin_allowed
+from server.runtime import Runtime
+from server.security import COOKIE, bearer, identify, origin_allowed
+from sessions.store import AccountRecord, Store
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -58,8 +59,7 @@ async def refuse(ws: WebSocket, why: str) -> None:
     await ws.close(code=status.WS_1008_POLICY_VIOLATION)
 
 
-async def dashboard_socket(ws: WebSocket) -> None:
-    runtime = ws.app.state.runtime
+async def dashboard_socket(ws: WebSocket, runtime: Runtime) -> None:
     dashboard = runtime.dashboard
     if dashboard is None:
         await refuse(ws, "no dashboard")
@@ -100,7 +100,7 @@ async def dashboard_socket(ws: WebSocket) -> None:
     _count.open += 1
     try:
         await ws.accept(subprotocol=upstream.subprotocol or proto)
-        await relay(ws, upstream, runtime, secret, account)
+        await relay(ws, upstream, runtime.store, secret, account)
     finally:
         _count.open -= 1
         with contextlib.suppress(Exception):
@@ -108,49 +108,15 @@ async def dashboard_socket(ws: WebSocket) -> None:
 
 
 async def relay(
-    ws: WebSocket, upstream: ClientConnection, runtime: Any, secret: str, account: Any
+    ws: WebSocket, upstream: ClientConnection, store: Store, secret: str, account: AccountRecord
 ) -> None:
-    async def browser_to_viser() -> tuple[int, str]:
-        while True:
-            msg = await ws.receive()
-            if msg["type"] == "websocket.disconnect":
-                return (1000, "")
-            data = msg.get("bytes")
-            if data is None:
-                data = msg.get("text")
-            if data is not None:
-                await upstream.send(data)
-
-    async def viser_to_browser() -> tuple[int, str]:
-        async for data in upstream:
-            try:
-                async with asyncio.timeout(SEND_TIMEOUT_S):
-                    if isinstance(data, bytes):
-                        await ws.send_bytes(data)
-                    else:
-                        await ws.send_text(data)
-            except TimeoutError:
-                log.warning(
-                    "dashboard socket of %s closed: the browser stopped reading", account.login
-                )
-                return (status.WS_1008_POLICY_VIOLATION, "too slow")
-        return (upstream.close_code or 1000, upstream.close_reason or "")
-
-    async def recheck() -> tuple[int, str]:
-        while True:
-            await asyncio.sleep(RECHECK_S)
-            now = await asyncio.to_thread(runtime.store.tokens.resolve, secret)
-            if now is None or now.disabled or now.role != account.role or now.id != account.id:
-                log.info("dashboard socket of %s closed: login ended or changed", account.login)
-                return (status.WS_1008_POLICY_VIOLATION, "login ended")
-
+    """Relay both ways until either side closes or the login ends; then close the other."""
     tasks = {
-        asyncio.create_task(browser_to_viser(), name="dashboard-in"),
-        asyncio.create_task(viser_to_browser(), name="dashboard-out"),
-        asyncio.create_task(recheck(), name="dashboard-login"),
+        asyncio.create_task(_browser_to_viser(ws, upstream), name="dashboard-in"),
+        asyncio.create_task(_viser_to_browser(ws, upstream, account), name="dashboard-out"),
+        asyncio.create_task(_recheck(store, secret, account), name="dashboard-login"),
     }
-    code, reason = 1000, ""
-    browser_gone = False
+    code, reason, browser_gone = 1000, "", False
     try:
         done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         for task in done:
@@ -175,6 +141,44 @@ async def relay(
             with contextlib.suppress(Exception):
                 async with asyncio.timeout(2.0):
                     await ws.close(code=_closable(code), reason=reason[:120])
+
+
+async def _browser_to_viser(ws: WebSocket, upstream: ClientConnection) -> tuple[int, str]:
+    while True:
+        msg = await ws.receive()
+        if msg["type"] == "websocket.disconnect":
+            return (1000, "")
+        data = msg.get("bytes")
+        if data is None:
+            data = msg.get("text")
+        if data is not None:
+            await upstream.send(data)
+
+
+async def _viser_to_browser(
+    ws: WebSocket, upstream: ClientConnection, account: AccountRecord
+) -> tuple[int, str]:
+    async for data in upstream:
+        try:
+            async with asyncio.timeout(SEND_TIMEOUT_S):
+                if isinstance(data, bytes):
+                    await ws.send_bytes(data)
+                else:
+                    await ws.send_text(data)
+        except TimeoutError:
+            log.warning("dashboard socket of %s closed: the browser stopped reading", account.login)
+            return (status.WS_1008_POLICY_VIOLATION, "too slow")
+    return (upstream.close_code or 1000, upstream.close_reason or "")
+
+
+async def _recheck(store: Store, secret: str, account: AccountRecord) -> tuple[int, str]:
+    """Every RECHECK_S: the login still valid, the same account with the same role."""
+    while True:
+        await asyncio.sleep(RECHECK_S)
+        now = await asyncio.to_thread(store.tokens.resolve, secret)
+        if now is None or now.disabled or now.role != account.role or now.id != account.id:
+            log.info("dashboard socket of %s closed: login ended or changed", account.login)
+            return (status.WS_1008_POLICY_VIOLATION, "login ended")
 
 
 def _closable(code: int) -> int:

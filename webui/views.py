@@ -8,17 +8,18 @@ when it changed)."""
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import viser
 
+from sessions.store import SessionRecord, UserRecord
 from webui.charts import LIVE, LiveCharts
 from webui.context import Context
-from webui.controls import LiveTab
-from webui.history import HistoryTab
+from webui.feed import LiveState
 from webui.progress import SeekerPanel
 from webui.scene import MachineScene
-from webui.users_tab import UsersTab
+from webui.tabs.history import HistoryTab
+from webui.tabs.live import LiveTab
+from webui.tabs.users import UsersTab
 
 TEXT_EVERY = 4  # ticks between text updates
 CHARTS_WIDTH, MAIN_WIDTH = 540, 440  # px: the docked panels (charts left, tabs right)
@@ -33,7 +34,7 @@ LOGOUT_HTML = (
 )
 
 
-def readout(st: Any) -> str:
+def readout(st: LiveState) -> str:
     row = st.window.last
     if row is None:
         return "No live data yet: start a session."
@@ -102,7 +103,7 @@ class View:
         live = getattr(self.server._websock_server, "_live_connections", None)
         return bool(live) if live is not None else bool(self.server.get_clients())
 
-    def render(self, st: Any, tick: int) -> None:
+    def render(self, st: LiveState, tick: int) -> None:
         with self.server.atomic():
             if st.window_version != self._window_version:
                 self._window_version = st.window_version
@@ -123,12 +124,12 @@ class View:
                 self.live.render(st, user.name if user is not None else None)
                 self.seeker.render(st.seeker)
 
-    def users_changed(self, options: tuple[str, ...], select: Any) -> None:
+    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
         self.live.users_changed(options, select)
         self.history.users_changed(options, select)
         if self.users is not None:
             self.users.users_changed(options, select)
 
-    def session_finished(self, record: Any) -> None:
+    def session_finished(self, record: SessionRecord) -> None:
         self.live.session_finished(record)
         self.history.session_finished(record)

@@ -7,16 +7,17 @@ from datetime import timedelta
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 
-from server.auth import COOKIE, LoginLimiter, Viewer, client_keys, identify, retry_after_header
-from server.schemas import LoginIn, Me, TokenOut
-from sessions.store import AccountRecord
+from server.api.deps import LimiterDep, SettingsDep, StoreDep, Viewer
+from server.api.schemas import LoginIn, Me, TokenOut
+from server.security import COOKIE, LoginLimiter, bearer, client_keys, identify, retry_after_header
+from sessions.store import AccountRecord, Store
 
 router = APIRouter(prefix="/api/v1/auth", tags=["auth"])
 
 
-async def _authenticate(request: Request, body: LoginIn) -> AccountRecord:
-    runtime = request.app.state.runtime
-    limiter: LoginLimiter = runtime.limiter
+async def _authenticate(
+    request: Request, body: LoginIn, store: Store, limiter: LoginLimiter
+) -> AccountRecord:
     keys = client_keys(request, body.login)
     wait = limiter.retry_after(keys)
     if wait > 0:
@@ -25,9 +26,7 @@ async def _authenticate(request: Request, body: LoginIn) -> AccountRecord:
             detail="too many failed logins: try again later",
             headers=retry_after_header(wait),
         )
-    account = await asyncio.to_thread(
-        runtime.store.accounts.authenticate, body.login, body.password
-    )
+    account = await asyncio.to_thread(store.accounts.authenticate, body.login, body.password)
     if account is None:
         limiter.failed(keys)
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, detail="wrong login name or password")
@@ -36,48 +35,50 @@ async def _authenticate(request: Request, body: LoginIn) -> AccountRecord:
 
 
 @router.post("/login", response_model=Me, summary="Log in a browser (sets an HttpOnly cookie)")
-async def login(request: Request, body: LoginIn, response: Response) -> Me:
-    account = await _authenticate(request, body)
-    runtime = request.app.state.runtime
-    lifetime = timedelta(hours=runtime.settings.session_hours)
-    token, _ = await asyncio.to_thread(runtime.store.tokens.issue, account.id, "cookie", lifetime)
+async def login(
+    request: Request,
+    body: LoginIn,
+    response: Response,
+    store: StoreDep,
+    limiter: LimiterDep,
+    settings: SettingsDep,
+) -> Me:
+    account = await _authenticate(request, body, store, limiter)
+    lifetime = timedelta(hours=settings.session_hours)
+    token, _ = await asyncio.to_thread(store.tokens.issue, account.id, "cookie", lifetime)
     response.set_cookie(
         COOKIE,
         token,
         max_age=int(lifetime.total_seconds()),
         httponly=True,
         samesite="strict",
-        secure=runtime.settings.cookie_secure,
+        secure=settings.cookie_secure,
         path="/",
     )
     return Me(account=account, via="cookie")
 
 
 @router.post("/token", response_model=TokenOut, summary="Get a bearer token for an API client")
-async def token(request: Request, body: LoginIn) -> TokenOut:
-    account = await _authenticate(request, body)
-    runtime = request.app.state.runtime
-    lifetime = timedelta(hours=runtime.settings.session_hours)
-    secret, record = await asyncio.to_thread(
-        runtime.store.tokens.issue, account.id, "bearer", lifetime
-    )
+async def token(
+    request: Request, body: LoginIn, store: StoreDep, limiter: LimiterDep, settings: SettingsDep
+) -> TokenOut:
+    account = await _authenticate(request, body, store, limiter)
+    lifetime = timedelta(hours=settings.session_hours)
+    secret, record = await asyncio.to_thread(store.tokens.issue, account.id, "bearer", lifetime)
     return TokenOut(access_token=secret, expires_at=record.expires_at)
 
 
 @router.post("/logout", status_code=204, summary="End this login (cookie or bearer token)")
-async def logout(request: Request, response: Response, _: Viewer) -> Response:
-    runtime = request.app.state.runtime
-    from server.auth import bearer
-
+async def logout(request: Request, store: StoreDep, _: Viewer) -> Response:
     secret = bearer(request) or request.cookies.get(COOKIE)
     if secret:
-        await asyncio.to_thread(runtime.store.tokens.revoke, secret)
+        await asyncio.to_thread(store.tokens.revoke, secret)
     response = Response(status_code=204)
     response.delete_cookie(COOKIE, path="/")
     return response
 
 
 @router.get("/me", response_model=Me, summary="Who is logged in")
-async def me(request: Request, account: Viewer) -> Me:
-    _, how = await asyncio.to_thread(identify, request, request.app.state.runtime.store)
+async def me(request: Request, store: StoreDep, account: Viewer) -> Me:
+    _, how = await asyncio.to_thread(identify, request, store)
     return Me(account=account, via="bearer" if how == "bearer" else "cookie")

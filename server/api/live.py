@@ -1,7 +1,7 @@
 """``/api/v1/live``: telemetry at a requested rate, events and seeker progress, over a
 WebSocket. Authenticated by bearer token (``Authorization`` header) or the login cookie;
 a browser's Origin must be the server's own. Query: ``rate`` samples per second (default 30,
-up to the loop rate). Frames are JSON text (see :mod:`server.live`)."""
+up to the loop rate). Frames are JSON text (see :mod:`server.service.live`)."""
 
 from __future__ import annotations
 
@@ -12,15 +12,18 @@ import math
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
 
-from server.auth import identify, origin_allowed
-from server.live import serve_subscription
+from server.api.deps import RuntimeDep
+from server.runtime import Runtime
+from server.security import identify, origin_allowed
+from server.service import serve_subscription
+from sessions.store import AccountRecord
 
 router = APIRouter(tags=["live"])
 
 
-@router.websocket("/api/v1/live")
-async def live(ws: WebSocket, rate: float = 30.0) -> None:
-    runtime = ws.app.state.runtime
+async def _admitted(ws: WebSocket, runtime: Runtime, rate: float) -> AccountRecord | None:
+    """The account, if the socket may open: a login, our Origin, a cookie only with an Origin,
+    a positive finite rate."""
     account, how = await asyncio.to_thread(identify, ws, runtime.store)
     origin = ws.headers.get("origin")
     refused = (
@@ -30,21 +33,20 @@ async def live(ws: WebSocket, rate: float = 30.0) -> None:
         or not math.isfinite(rate)
         or rate <= 0
     )
-    if refused:
+    return None if refused else account
+
+
+@router.websocket("/api/v1/live")
+async def live(ws: WebSocket, runtime: RuntimeDep, rate: float = 30.0) -> None:
+    account = await _admitted(ws, runtime, rate)
+    if account is None:
         await ws.close(code=status.WS_1008_POLICY_VIOLATION)
         return
     await ws.accept()
     hub = runtime.hub
     sub = hub.subscribe(rate)
-    machine = runtime.machine_status()
-    await ws.send_json(
-        {
-            "type": "hello",
-            "account": account.login,
-            "rate": sub.rate,
-            "machine": machine.model_dump(),
-        }
-    )
+    hello = {"type": "hello", "account": account.login, "rate": sub.rate}
+    await ws.send_json({**hello, "machine": runtime.machine.status().model_dump()})
 
     async def send(frame: dict[str, object]) -> None:
         await ws.send_text(json.dumps(frame, separators=(",", ":"), allow_nan=False))

@@ -2,7 +2,10 @@
 
 ``sim`` needs nothing: the plant and the simulated user come from each session's config.
 ``odrive`` needs the serial device and the rig's mechanics (gear ratio, direction) and the
-safety settings of the drive (watchdog, reply timeout, velocity margin).
+safety settings of the drive (watchdog, reply timeout, velocity margin). Every setting of the
+drive is defined here once; the server's settings and the command line take them from here.
+
+Which controller a machine can run is decided here too (:func:`check_controller`).
 """
 
 from __future__ import annotations
@@ -10,6 +13,8 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Direction = Literal[1, -1]  # +1 if the motor's positive direction is the handle's
 
 
 class MachineSpec(BaseModel):
@@ -20,13 +25,13 @@ class MachineSpec(BaseModel):
     baudrate: int = Field(921600, gt=0, description="odrive: UART baud rate (ignored by USB CDC)")
     axis: int = Field(0, ge=0, le=1, description="odrive: axis the handle is on")
     gear_ratio: float = Field(1.0, gt=0, le=1000, description="odrive: motor turns per handle turn")
-    direction: Literal[1, -1] = Field(
+    direction: Direction = Field(
         1, description="odrive: +1 if the motor's positive direction is the handle's, else -1"
     )
     watchdog_timeout: float = Field(
         0.05, gt=0, le=1.0, description="odrive: device watchdog, s (fed every cycle)"
     )
-    timeout: float = Field(
+    reply_timeout: float = Field(
         0.02, gt=0, le=1.0, description="odrive: longest wait for a reply before a fault, s"
     )
     checksum: bool = Field(True, description="odrive: send and require line checksums")
@@ -44,7 +49,7 @@ class MachineSpec(BaseModel):
     def _device(self) -> MachineSpec:
         if self.kind == "odrive" and not self.device:
             raise ValueError("the odrive machine needs a device path")
-        if self.watchdog_timeout <= self.timeout:
+        if self.watchdog_timeout <= self.reply_timeout:
             raise ValueError("watchdog_timeout must exceed the reply timeout")
         return self
 
@@ -52,3 +57,13 @@ class MachineSpec(BaseModel):
     def has_torque_sensor(self) -> bool:
         """Controller A (measured torque) needs one: the simulator has it, an ODrive has not."""
         return self.kind == "sim"
+
+
+def check_controller(machine: str, has_torque_sensor: bool, controller: str) -> None:
+    """Refuse a controller the machine cannot run: controller A (7) feeds back the measured
+    user torque, so it needs a torque sensor. Raises ValueError (one wording everywhere)."""
+    if controller == "measured" and not has_torque_sensor:
+        raise ValueError(
+            f"the {machine} machine has no torque sensor: controller 'measured' (eq. 7) needs "
+            "one; use 'rise' (eq. 23)"
+        )

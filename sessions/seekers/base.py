@@ -19,12 +19,10 @@ import math
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
+from sessions.codes import DELAY, DONE, MEASURING, PHASES, SETTLING
 from sessions.config import SeekerConfig
 from sessions.filters import TrajectoryFilter
 from sessions.seekers.averaging import PowerAverager
-
-DELAY, SETTLING, MEASURING, DONE = 0, 1, 2, 3
-PHASES = ("delay", "settling", "measuring", "done")
 
 
 @dataclass(frozen=True, slots=True)

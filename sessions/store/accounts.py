@@ -12,11 +12,12 @@ from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 
+from sessions.codes import ROLES, Role
 from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import ConflictError, NotFoundError, StoreValueError
-from sessions.store.models import ROLES, Account
-from sessions.store.records import AccountRecord, Role
+from sessions.store.models import Account
+from sessions.store.records import AccountRecord
 
 _LOGIN = re.compile(r"[a-z0-9][a-z0-9._@-]*")
 PASSWORD_MIN = 8

@@ -13,10 +13,11 @@ from datetime import datetime, timedelta
 
 from sqlalchemy import delete, select, update
 
+from sessions.codes import TOKEN_KINDS
 from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import StoreValueError
-from sessions.store.models import TOKEN_KINDS, Account, AuthToken, utcnow
+from sessions.store.models import Account, AuthToken, utcnow
 from sessions.store.records import AccountRecord, TokenRecord
 
 

@@ -41,11 +41,13 @@ from typing import Any
 
 import numpy as np
 
+from sessions.codes import DONE, WorkerStateName
 from sessions.config import SessionConfig, parse_session_config
-from sessions.machine.spec import MachineSpec
+from sessions.machine.spec import MachineSpec, check_controller
 from sessions.summary import SessionSummary
 from sessions.worker.channel import EventReceiver
 from sessions.worker.messages import (
+    CandidateMeasured,
     EStop,
     EStopped,
     Event,
@@ -54,7 +56,6 @@ from sessions.worker.messages import (
     Rejected,
     Reset,
     ResetDone,
-    SeekerEvaluation,
     SessionEnded,
     SessionStarted,
     Shutdown,
@@ -66,9 +67,9 @@ from sessions.worker.messages import (
     WorkerExited,
     WorkerLost,
     WorkerReady,
-    WorkerStateName,
 )
-from sessions.worker.process import WorkerOptions, worker_main
+from sessions.worker.options import WorkerOptions
+from sessions.worker.process import worker_main
 from sessions.worker.ring import (
     H_CYCLES,
     H_HEAD,
@@ -78,8 +79,6 @@ from sessions.worker.ring import (
     RingReader,
     TelemetryRing,
 )
-
-DONE_PHASE = 3
 
 
 class WorkerError(RuntimeError):
@@ -120,7 +119,7 @@ class _Follow:
     gamma: float = 0.0
     phase: float = 0.0
     last_seq: int = -1
-    evaluations: list[SeekerEvaluation] = field(default_factory=list)
+    evaluations: list[CandidateMeasured] = field(default_factory=list)
 
     def update(self) -> None:
         while True:
@@ -152,7 +151,7 @@ class _Follow:
         return SessionSummary(
             optimum_w=optimum_w,
             optimum_p=optimum_p,
-            converged=self.phase == DONE_PHASE,
+            converged=self.phase == DONE,
             seeker=self.cfg.seeker.kind,
             mean_power=self.power_sum / self.k if self.k else 0.0,
             peak_power=self.peak,
@@ -276,11 +275,7 @@ class Worker:
             cfg = parse_session_config(dict(cfg))
         if not isinstance(session_id, str) or not session_id:
             raise ValueError("session_id must be a non-empty string")
-        if cfg.controller.kind == "measured" and not self.spec.has_torque_sensor:
-            raise ValueError(
-                f"the {self.spec.kind} machine has no torque sensor: controller 'measured' "
-                "(eq. 7) needs one; use 'rise'"
-            )
+        check_controller(self.spec.kind, self.spec.has_torque_sensor, cfg.controller.kind)
         self._poll_into_backlog()
         if self._state != "idle":
             why = f": {self._fault}" if self._fault else ""
@@ -406,7 +401,7 @@ class Worker:
         elif isinstance(ev, Rejected):
             if ev.command == "start":
                 self._starting = None
-        elif isinstance(ev, SeekerEvaluation):
+        elif isinstance(ev, CandidateMeasured):
             if self._follow is not None:
                 self._follow.evaluations.append(ev)
         elif isinstance(ev, Stopping):

@@ -38,7 +38,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from sessions.telemetry import NAMES, UNITS
+from sessions.telemetry import RECORD_INDEX, RECORD_NAMES, RECORD_UNITS, RECORD_WIDTH
 
 MAGIC = 0x3147_4E49_5245_4B45  # "EKERING1"
 VERSION = 1
@@ -46,30 +46,12 @@ HEADER_WORDS = 16
 H_MAGIC, H_VERSION, H_CAPACITY, H_WIDTH, H_HEAD, H_HEARTBEAT = 0, 1, 2, 3, 4, 5
 H_STATE, H_SESSION, H_PID, H_CYCLES = 6, 7, 8, 9
 
-# Worker state codes in the header (names in sessions.worker.messages.STATES).
-STATE_STARTING, STATE_IDLE, STATE_RUNNING, STATE_STOPPING = 0, 1, 2, 3
-STATE_ESTOPPED, STATE_FAULTED, STATE_CLOSED = 4, 5, 6
-
-# Flags column bits: the engine's limit flags (sessions.limits) plus the worker's own.
-FLAG_TORQUE_LIMIT = 1
-FLAG_VELOCITY_LIMIT = 2
-FLAG_STOPPING = 4
-FLAG_ESTOP = 8
-FLAG_FAULT = 16
-FLAG_PASSIVITY = 32
-
-EXTRA: tuple[tuple[str, str, str], ...] = (
-    ("u_out", "N*m", "torque written to the machine (the loop's u, or the stop ramp's, or 0)"),
-    ("phase", "", "seeker phase: 0 delay, 1 settling, 2 measuring, 3 done; -1 stopping"),
-    ("flags", "", "1 torque limit, 2 velocity limit, 4 stopping, 8 e-stop, 16 fault, 32 passivity"),
-    ("late", "us", "lateness of this cycle's wake-up behind its deadline"),
-    ("mono", "s", "monotonic clock when the cycle started (CLOCK_MONOTONIC, all processes)"),
-    ("session", "", "the worker's session number"),
-)
-COLUMNS: tuple[str, ...] = NAMES + tuple(c[0] for c in EXTRA)
-COLUMN_UNITS: dict[str, str] = {**UNITS, **{c[0]: c[1] for c in EXTRA}}
-INDEX: dict[str, int] = {name: i for i, name in enumerate(COLUMNS)}
-WIDTH = len(COLUMNS)
+# A record's columns are the telemetry's (sessions.telemetry); the worker state codes in the
+# header and the bits of the flags column are sessions.codes'.
+COLUMNS: tuple[str, ...] = RECORD_NAMES
+COLUMN_UNITS: dict[str, str] = RECORD_UNITS
+INDEX: dict[str, int] = RECORD_INDEX
+WIDTH = RECORD_WIDTH
 
 
 def _layout(capacity: int, width: int) -> tuple[int, int, int]:

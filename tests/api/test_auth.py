@@ -7,7 +7,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from tests.server_support import PASSWORDS, ServerProcess, start_server
+from testing.server import PASSWORDS, ServerProcess, start_server
 
 # (method, path, body, least role); {user} and {acc} are filled in
 ROUTES: list[tuple[str, str, dict | None, str]] = [

@@ -12,22 +12,8 @@ from pathlib import Path
 import httpx
 
 from sessions.store import open_store
-from tests.server_support import ROOT, free_port
-
-
-def ergoseek(
-    *args: str, stdin: str = "", env: dict[str, str] | None = None
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "server", *args],
-        input=stdin,
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, **(env or {})},
-        timeout=60,
-        check=False,
-    )
+from testing.cli import ROOT, ergoseek
+from testing.server import free_port
 
 
 def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:

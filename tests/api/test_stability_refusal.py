@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.server_support import ServerProcess, start_server
+from testing.server import ServerProcess, start_server
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
 

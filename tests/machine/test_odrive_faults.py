@@ -16,23 +16,17 @@ import pytest
 
 from sessions.config import parse_session_config
 from sessions.machine import MachineError, MachineSpec, MachineState, make_machine
-from sessions.machine.emulator import AXIS_COUNT, EmulatorConfig, EmulatorProcess
-from sessions.machine.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+from sessions.machine.odrive.emulator import AXIS_COUNT, EmulatorConfig, EmulatorProcess
+from sessions.machine.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 from sessions.worker import Worker, WorkerError, WorkerOptions
-from tests.live_support import follow, scenario, wait_for
+from testing.live import follow, scenario, wait_for
 
 CFG = parse_session_config({"duration": 30.0})
 TIMEOUT = 0.02
 
 
-@pytest.fixture(scope="module")
-def emu():
-    with EmulatorProcess(EmulatorConfig()) as e:
-        yield e
-
-
 def armed(emu, **spec):
-    m = make_machine(MachineSpec(kind="odrive", device=emu.path, timeout=TIMEOUT, **spec))
+    m = make_machine(MachineSpec(kind="odrive", device=emu.path, reply_timeout=TIMEOUT, **spec))
     m.connect()
     m.arm(CFG)
     m.activate()
@@ -121,7 +115,7 @@ def test_connect_refuses_a_wrong_device(tmp_path):
 
 
 def test_worker_session_faults_on_garbage_and_stays_latched(emu):
-    spec = MachineSpec(kind="odrive", device=emu.path, timeout=0.2, watchdog_timeout=0.5)
+    spec = MachineSpec(kind="odrive", device=emu.path, reply_timeout=0.2, watchdog_timeout=0.5)
     with Worker(spec, WorkerOptions()) as worker:
         worker.start()
         worker.start_session(scenario(duration=20.0), "garbled")

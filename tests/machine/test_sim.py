@@ -118,6 +118,6 @@ def test_machine_spec_validation():
     with pytest.raises(ValueError, match="device"):
         MachineSpec(kind="odrive")
     with pytest.raises(ValueError, match="watchdog_timeout must exceed"):
-        MachineSpec(kind="odrive", device="/dev/x", watchdog_timeout=0.01, timeout=0.02)
+        MachineSpec(kind="odrive", device="/dev/x", watchdog_timeout=0.01, reply_timeout=0.02)
     with pytest.raises(ValueError):
         MachineSpec(kind="odrive", device="/dev/x", direction=2)

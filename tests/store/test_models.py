@@ -20,7 +20,7 @@ from sessions.store import (
     default_data_dir,
 )
 from sessions.summary import SessionSummary
-from tests.store_data import telemetry
+from testing.store import telemetry
 
 CFG = parse_session_config({"duration": 30.0, "seeker": {"kind": "parabolic"}})
 SUMMARY = SessionSummary(

@@ -6,16 +6,13 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-# as the console script runs it (``python -m server.cli`` would load the module twice, as
-# __main__ and as server.cli, and UsageError would not be the class main() catches)
-CLI = [sys.executable, "-c", "import sys; from server.cli import main; sys.exit(main())"]
+from testing.cli import COMMAND, ROOT, ergoseek
+
+CLI = COMMAND
 
 QUICK = """
 duration = {duration}
@@ -29,17 +26,6 @@ window = 0.3
 max_window = 2.0
 start_delay = 0.5
 """
-
-
-def ergoseek(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [*CLI, *args],
-        check=False,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=ROOT,
-    )
 
 
 @pytest.fixture

@@ -15,7 +15,7 @@ import pytest
 
 from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.ring import INDEX
-from tests.live_support import follow, scenario, wait_for
+from testing.live import follow, scenario, wait_for
 
 
 def _start(duration: float = 30.0) -> tuple[Worker, object]:

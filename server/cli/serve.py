@@ -1,0 +1,77 @@
+"""``ergoseek serve``: the web server with the machine's worker, the store and the dashboard."""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING, Any
+
+from pydantic import ValidationError
+
+if TYPE_CHECKING:
+    from server.settings import Settings
+
+
+def add_server_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="TOML file of settings (see docs/server.md)")
+    p.add_argument("--host", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="port (default 8000)")
+    p.add_argument("--database-url", dest="database_url", help="SQLAlchemy URL (default SQLite)")
+    p.add_argument("--data-dir", dest="data_dir", help="folder of the default SQLite file")
+    p.add_argument("--no-dashboard", dest="dashboard", action="store_const", const=False)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="run the web server (REST API, live WebSocket, dashboard) and the machine",
+        description="Serve ergoseek: settings from flags, ERGOSEEK_* variables, --config.",
+    )
+    add_server_flags(p)
+    p.add_argument("--machine", choices=("sim", "odrive", "odrive-emulator"))
+    p.add_argument("--device", help="serial device of the ODrive (--machine odrive)")
+    p.set_defaults(run=run)
+
+
+def settings_from(args: argparse.Namespace, **extra: Any) -> Settings:
+    from server.cli import UsageError
+    from server.settings import Settings
+
+    given = {k: v for k, v in vars(args).items() if k in Settings.model_fields and v is not None}
+    try:
+        settings = Settings(**given, **extra)
+    except ValidationError as exc:
+        from sessions.config import describe_validation_error
+
+        raise UsageError(describe_validation_error(exc)) from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if settings.machine == "odrive" and not settings.device:
+        raise UsageError("--machine odrive needs --device PATH")
+    return settings
+
+
+def serve(settings: Settings) -> int:
+    import logging
+
+    import uvicorn
+
+    from server.app import create_app
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    app = create_app(settings)
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        ws_per_message_deflate=False,
+        lifespan="on",
+        log_level="info",
+        timeout_graceful_shutdown=5,
+    )
+    server = uvicorn.Server(config)
+    server.run()
+    return 0 if server.started else 1
+
+
+def run(args: argparse.Namespace) -> int:
+    return serve(settings_from(args))
