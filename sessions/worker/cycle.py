@@ -12,7 +12,12 @@
   (a seeker evaluation, limit hits, a Timing a second) go out over the channel.
 
 A machine fault at read or write ends the session ``faulted`` (the backend has zeroed the
-torque). Nothing here allocates more than short-lived floats and tuples.
+torque). A non-finite value never goes further than where it appears: a NaN or infinite
+measurement (angle, velocity, a torque sensor's reading) is a fault of the machine (zero
+torque, ``faulted``, latched) and never enters the loop; a non-finite value the loop computes
+(reference, torque estimate, command, power, work, target) zeroes the torque and ends the
+session ``aborted``, naming the value. Nothing here allocates more than short-lived floats
+and tuples.
 """
 
 from __future__ import annotations
@@ -35,6 +40,17 @@ if TYPE_CHECKING:
     from sessions.worker.process import WorkerProcess
 
 PARENT_CHECK_MASK = 7  # look at the parent pid every 8 cycles (a syscall)
+# the loop's values checked each period, in causal order: (row index, what it is)
+LOOP_VALUES = ((3, "reference wd"), (4, "reference acceleration ad"), (6, "torque estimate τ"),
+               (5, "torque command u"), (7, "power p"), (8, "work W"), (9, "target γ"))  # fmt: skip
+
+
+class NonFiniteError(Exception):
+    """A non-finite value in this period: ``measured`` (the machine's) or the loop's own."""
+
+    def __init__(self, what: str, value: float, measured: bool) -> None:
+        super().__init__(f"non-finite {'measured ' if measured else ''}{what} = {value!r}")
+        self.measured = measured
 
 
 class SessionCycle:
@@ -65,6 +81,7 @@ class SessionCycle:
         rwrite, mono, mono_ns = ring.write, time.monotonic, time.monotonic_ns
         record = pacer.timing.record
         poll = host.cmd_poll.poll
+        sensor = host.machine.has_torque_sensor  # else τ reads NaN by design
         next_timing = mono() + self.timing_interval
         pacer.start()
         while True:
@@ -77,10 +94,16 @@ class SessionCycle:
                     return self.last_record(end, flags, late, now)
             try:
                 q, w, tau = read()
+                if q - q != 0.0 or w - w != 0.0 or (sensor and tau - tau != 0.0):  # NaN, ±inf
+                    raise_measurement(q, w, tau)
                 u = self.update(q, w, tau, now)
                 write(u)
             except MachineError as exc:
                 end = sup.fault(str(exc), mono())
+                return self.last_record(end, FLAG_FAULT, late, now)
+            except NonFiniteError as exc:
+                host.machine.zero()
+                end = sup.nonfinite(str(exc), exc.measured, mono())
                 return self.last_record(end, FLAG_FAULT, late, now)
             rwrite((*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session))
             hdr[H_HEARTBEAT] = mono_ns()
@@ -123,7 +146,10 @@ class SessionCycle:
         ramp = sup.ramp
         if ramp is None:
             u = loop.step(q, w, tau)
-            self.row = loop.row
+            row = self.row = loop.row
+            s = u + row[3] + row[4] + row[6] + row[7] + row[8] + row[9]
+            if s - s != 0.0:  # one of them is NaN or ±inf (or their sum overflowed)
+                check_loop_values(u, row)
             self.phase = float(loop.seeker.phase)
             if loop.evaluation is not None:
                 self.evaluated(now)
@@ -157,3 +183,18 @@ class SessionCycle:
              late * 1e6, now, self.session)
         )  # fmt: skip
         return end
+
+
+def raise_measurement(q: float, w: float, tau: float) -> None:
+    """Name the non-finite measurement (the caller found one)."""
+    for what, value in (("angle q", q), ("velocity w", w), ("torque τ", tau)):
+        if not math.isfinite(value):
+            raise NonFiniteError(what, value, measured=True)
+
+
+def check_loop_values(u: float, row: tuple[float, ...]) -> None:
+    """Raise :class:`NonFiniteError` for the first non-finite value of this step, if any."""
+    for i, what in LOOP_VALUES:
+        value = u if i == 5 else row[i]
+        if not math.isfinite(value):
+            raise NonFiniteError(what, value, measured=False)
