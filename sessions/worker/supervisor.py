@@ -7,9 +7,10 @@ What ends a session, and how (:class:`End`):
   ``e-stop``): an operator's decision, like a stop.
 - **machine fault** (timeout, garbage, drive error, a non-finite measurement): the backend
   has already written zero torque; the session ends ``faulted``; latched until a reset.
-- **a non-finite value in the loop** (reference, estimate, command, power, work, target):
-  zero torque at once, the session ends ``aborted`` naming the value; nothing is latched (the
-  machine is sound), and the summary keeps only what is finite.
+- **a non-finite value in the loop** (reference, estimate, command, power, work, target) or
+  **a stall** longer than the catch-up bound (a free-running machine): zero torque at once,
+  the session ends ``aborted`` naming the value or the stall; nothing is latched (the machine
+  is sound), and the summary keeps only what is finite.
 - **parent gone** (the command pipe closes or the parent pid changes), **SIGTERM**, **shutdown**:
   zero torque at once, the session ends ``aborted`` (``stopped`` for a shutdown).
 - **velocity over the limit** and **passivity breach** (W < −c²): a controlled stop, the
@@ -191,9 +192,10 @@ class Supervisor:
         self.freeze("faulted", reason)
         return End("faulted", reason, STATE_FAULTED)
 
-    def nonfinite(self, reason: str, measured: bool, now: float) -> End:
-        """A non-finite value this period (the cycle has zeroed the torque): a measurement's
-        is the machine's fault (latched); the loop's own ends the session aborted."""
+    def loop_error(self, reason: str, measured: bool, now: float) -> End:
+        """This period cannot go on (the cycle has zeroed the torque): a non-finite
+        measurement is the machine's fault (latched); a non-finite value of the loop's own, or
+        a stall beyond the catch-up bound, ends the session aborted."""
         if measured:
             return self.fault(reason, now)
         self.freeze("aborted", reason)
