@@ -32,7 +32,12 @@ from sessions.loop import Loop
 from sessions.machine import MachineSpec, make_machine
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
-from testing.live import odrive
+
+
+def odrive(path: str, **kw: float) -> MachineSpec:
+    """The emulated rig's drive (its motor's torque constant)."""
+    kt = EmulatorConfig().torque_constant
+    return MachineSpec(kind="odrive", device=path, torque_constant=kt, **kw)  # type: ignore[arg-type]
 
 
 def free_run(path: str, seconds: float) -> dict[str, float]:
