@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 Direction = Literal[1, -1]  # +1 if the motor's positive direction is the handle's
 FirmwarePolicy = Literal["supported", "probe"]
@@ -60,6 +60,7 @@ class MachineSpec(BaseModel):
         None,
         gt=0,
         le=10.0,
+        validate_default=True,
         description="odrive: the motor's torque constant, N·m/A (8.27/Kv); the drive's "
         "motor.config.torque_constant must match it at arm",
     )
@@ -94,15 +95,20 @@ class MachineSpec(BaseModel):
         None, description="sim: a fault injected into every session (fire drills, tests)"
     )
 
+    @field_validator("torque_constant")
+    @classmethod
+    def _torque_constant(cls, v: float | None, info: ValidationInfo) -> float | None:
+        if v is None and info.data.get("kind") == "odrive" and info.data.get("device"):
+            raise ValueError(
+                "the odrive machine needs its motor's torque constant, N·m/A (8.27/Kv of the "
+                "motor), checked against the drive's at arm"
+            )
+        return v
+
     @model_validator(mode="after")
     def _device(self) -> MachineSpec:
         if self.kind == "odrive" and not self.device:
             raise ValueError("the odrive machine needs a device path")
-        if self.kind == "odrive" and self.torque_constant is None:
-            raise ValueError(
-                "the odrive machine needs the motor's torque constant (torque_constant, N·m/A: "
-                "8.27/Kv of the motor), checked against the drive's at arm"
-            )
         if self.watchdog_timeout <= self.reply_timeout:
             raise ValueError("watchdog_timeout must exceed the reply timeout")
         if self.sim_fault is not None and self.kind != "sim":
