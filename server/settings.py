@@ -8,7 +8,9 @@ There are no default passwords anywhere: accounts are created with ``ergoseek ac
 One Settings, one definition per setting: the machine's keys (``inertia``, ``max_torque``,
 ``max_velocity``, ``rate``) are the engine's fields (:class:`sessions.config.MachineConfig`,
 :class:`sessions.config.SessionConfig`), the drive's (``gear_ratio``, ``direction``,
-``reply_timeout``, ``watchdog_timeout``) are :class:`sessions.machine.MachineSpec`'s, taken with
+``torque_constant``, ``reply_timeout``, ``watchdog_timeout``, ``baudrate``,
+``vel_limit_tolerance``, ``firmware_policy``) and the simulator's ``sim_fault`` are
+:class:`sessions.machine.MachineSpec`'s, taken with
 their defaults, bounds and descriptions (the server adds only its own caps). The worker's
 options are nested as they are (``worker.cpu``, ``ERGOSEEK_WORKER__CPU``). What the service
 runs on is built from them: :meth:`Settings.rig`, :meth:`Settings.machine_spec`.
@@ -27,7 +29,8 @@ from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from sessions.config import MachineConfig, SessionConfig
-from sessions.machine.spec import Direction, MachineSpec
+from sessions.machine.odrive.emulator.device import EmulatorConfig
+from sessions.machine.spec import Direction, FirmwarePolicy, MachineSpec, SimFault
 from sessions.requests import Rig
 from sessions.store.database import SQLITE_FILENAME
 from sessions.worker.options import LIVE_RATE_MAX, WorkerOptions
@@ -89,6 +92,11 @@ class Settings(BaseSettings):
     direction: Direction = owned(MachineSpec, "direction")
     reply_timeout: float = owned(MachineSpec, "reply_timeout")
     watchdog_timeout: float = owned(MachineSpec, "watchdog_timeout")
+    torque_constant: float | None = owned(MachineSpec, "torque_constant")
+    baudrate: int = owned(MachineSpec, "baudrate")
+    vel_limit_tolerance: float = owned(MachineSpec, "vel_limit_tolerance")
+    firmware_policy: FirmwarePolicy = owned(MachineSpec, "firmware_policy")
+    sim_fault: SimFault | None = owned(MachineSpec, "sim_fault")
     worker: WorkerOptions = Field(default_factory=WorkerOptions, description="the worker")
     # logins
     session_hours: float = Field(12.0, gt=0, le=24 * 30, description="login lifetime, h")
@@ -121,14 +129,21 @@ class Settings(BaseSettings):
         """What the worker drives: the simulator, or an ODrive at ``device`` (default: the
         configured one; the emulator's pty for ``odrive-emulator``)."""
         if self.machine == "sim":
-            return MachineSpec(kind="sim")
+            return MachineSpec(kind="sim", sim_fault=self.sim_fault)
+        torque_constant = self.torque_constant
+        if torque_constant is None and self.machine == "odrive-emulator":
+            torque_constant = EmulatorConfig.torque_constant  # the emulated motor's
         return MachineSpec(
             kind="odrive",
             device=device or self.device,
             gear_ratio=self.gear_ratio,
             direction=self.direction,
+            torque_constant=torque_constant,
             reply_timeout=self.reply_timeout,
             watchdog_timeout=self.watchdog_timeout,
+            baudrate=self.baudrate,
+            vel_limit_tolerance=self.vel_limit_tolerance,
+            firmware_policy=self.firmware_policy,
         )
 
     def rig(self, spec: MachineSpec) -> Rig:
@@ -137,8 +152,12 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _drive(self) -> Settings:
+        if self.machine == "odrive" and not self.device:
+            return self  # the command line asks for --device first
         if self.machine != "sim":  # the drive's settings must make a spec (checked now, not later)
             self.machine_spec(self.device or "(the emulator's pty)")
+        elif self.sim_fault is not None:
+            self.machine_spec()
         return self
 
     @field_validator("device")

@@ -179,18 +179,44 @@ class MachineService:
         self._require_worker().stop()
 
     def estop(self) -> None:
-        """Zero torque at once; latched until :meth:`reset`."""
-        self._require_worker().estop()
+        """Zero torque at once; latched until :meth:`reset`. With no worker (lost, however it
+        went) nothing drives the motor: the e-stop holds as it is (the lost state is latched
+        too, until a reset), and it never fails."""
+        worker = self.worker
+        if worker is None or self.lost is not None:
+            log.warning("e-stop with the worker lost (%s): nothing drives the motor", self.lost)
+            return
+        try:
+            worker.estop()
+        except WorkerError as exc:  # it died just now: the pump records the end
+            log.warning("e-stop: %s; nothing drives the motor", exc)
 
     async def reset(self) -> None:
-        """Clear a latched e-stop or fault; a lost worker is replaced. Never starts motion."""
+        """Clear a latched e-stop or fault; a lost worker (killed, crashed, exited, unreachable)
+        is replaced, after its last events are recorded. Never starts motion."""
         async with self._lock:
-            if self.worker is None or self.lost is not None:
-                if self.worker is not None:
-                    await asyncio.to_thread(self.worker.shutdown)
-                await self._spawn()
-                return
-            self.worker.reset()
+            worker = self.worker
+            if worker is not None and self.lost is None and worker.state not in ("lost", "closed"):
+                try:
+                    worker.reset()
+                    return
+                except WorkerError:  # found gone on the way: replace it below
+                    pass
+            if worker is not None:
+                await self._retire(worker)
+            await self._spawn()
+
+    async def _retire(self, worker: Worker) -> None:
+        """Take down a worker that is gone or going, recording what it said last (a session
+        it was running ends aborted, its data kept)."""
+        pump = self.pump
+        pump.worker = None  # the pump stops polling it: a handle is used from one thread
+        events = await asyncio.to_thread(worker.shutdown)
+        pump.drain_ring()
+        for ev in events:
+            await pump.handle(ev)
+        if pump.session is not None:  # it never told: end the session from what was stored
+            await pump.finish(pump.session, "aborted", None, self.lost or "worker lost")
 
     def _require_worker(self) -> Worker:
         if self.worker is None or self.lost is not None:

@@ -12,7 +12,22 @@
   (a seeker evaluation, limit hits, a Timing a second) go out over the channel.
 
 A machine fault at read or write ends the session ``faulted`` (the backend has zeroed the
-torque). Nothing here allocates more than short-lived floats and tuples.
+torque).
+
+Missed periods: on a free-running machine (a real drive: the plant moves on its own clock and
+the drive holds the last torque), a cycle that wakes m whole periods late first steps the loop
+through the m periods it missed (a bounded catch-up, at most ``catch_up_max`` of them), with
+the measurement interpolated between the last read and this one and the torque the drive held
+(:meth:`SessionCycle.catch_up`), so that the RISE integrals, the observer, the filters, W(t) and
+the session's duration all see the time that really passed; a longer stall ends the session
+(zero torque, ``aborted``). The simulator advances one period per write: nothing to catch up.
+
+A non-finite value never goes further than where it appears: a NaN or infinite
+measurement (angle, velocity, a torque sensor's reading) is a fault of the machine (zero
+torque, ``faulted``, latched) and never enters the loop; a non-finite value the loop computes
+(reference, torque estimate, command, power, work, target) zeroes the torque and ends the
+session ``aborted``, naming the value. Nothing here allocates more than short-lived floats
+and tuples.
 """
 
 from __future__ import annotations
@@ -22,7 +37,7 @@ import os
 import time
 from typing import TYPE_CHECKING
 
-from sessions.codes import FLAG_FAULT, FLAG_STOPPING, STOPPING
+from sessions.codes import FLAG_CATCHUP, FLAG_FAULT, FLAG_STOPPING, STOPPING
 from sessions.config import SessionConfig
 from sessions.loop import Loop
 from sessions.machine import MachineError
@@ -35,6 +50,33 @@ if TYPE_CHECKING:
     from sessions.worker.process import WorkerProcess
 
 PARENT_CHECK_MASK = 7  # look at the parent pid every 8 cycles (a syscall)
+# the loop's values checked each period, in causal order: (row index, what it is)
+LOOP_VALUES = ((3, "reference wd"), (4, "reference acceleration ad"), (6, "torque estimate τ"),
+               (5, "torque command u"), (7, "power p"), (8, "work W"), (9, "target γ"))  # fmt: skip
+
+
+class LoopError(Exception):
+    """This period cannot go on: zero torque now. ``measured``: the machine's fault (latched)."""
+
+    measured = False
+
+
+class NonFiniteError(LoopError):
+    """A non-finite value in this period: ``measured`` (the machine's) or the loop's own."""
+
+    def __init__(self, what: str, value: float, measured: bool) -> None:
+        super().__init__(f"non-finite {'measured ' if measured else ''}{what} = {value!r}")
+        self.measured = measured
+
+
+class StalledError(LoopError):
+    """The worker missed more periods than the loop may catch up."""
+
+    def __init__(self, late: float, bound: float) -> None:
+        super().__init__(
+            f"the loop stalled {late * 1e3:.0f} ms (more than catch_up_max = {bound * 1e3:.0f} "
+            "ms): the controller lost track of the handle"
+        )
 
 
 class SessionCycle:
@@ -53,6 +95,9 @@ class SessionCycle:
         self.row = loop.row  # the last record's engine channels
         self.phase = 0.0
         self.flags = 0
+        self.period = loop.dt
+        self.catch_up_max = opt.catch_up_max if host.machine.free_running else -1.0
+        self.prev = (loop.row[1], loop.row[2], math.nan)  # the last measurement (q, w, τ)
 
     @property
     def timing(self) -> TimingRecorder:
@@ -65,6 +110,9 @@ class SessionCycle:
         rwrite, mono, mono_ns = ring.write, time.monotonic, time.monotonic_ns
         record = pacer.timing.record
         poll = host.cmd_poll.poll
+        sensor = host.machine.has_torque_sensor  # else τ reads NaN by design
+        catching = self.catch_up_max >= 0.0  # a free-running plant: missed periods are real
+        period = self.period
         next_timing = mono() + self.timing_interval
         pacer.start()
         while True:
@@ -77,11 +125,20 @@ class SessionCycle:
                     return self.last_record(end, flags, late, now)
             try:
                 q, w, tau = read()
+                if q - q != 0.0 or w - w != 0.0 or (sensor and tau - tau != 0.0):  # NaN, ±inf
+                    raise_measurement(q, w, tau)
+                if late >= period and catching:
+                    self.catch_up(q, w, tau, now, late)
                 u = self.update(q, w, tau, now)
                 write(u)
             except MachineError as exc:
                 end = sup.fault(str(exc), mono())
                 return self.last_record(end, FLAG_FAULT, late, now)
+            except LoopError as exc:
+                host.machine.zero()
+                end = sup.loop_error(str(exc), exc.measured, mono())
+                return self.last_record(end, FLAG_FAULT, late, now)
+            self.prev = (q, w, tau)
             rwrite((*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session))
             hdr[H_HEARTBEAT] = mono_ns()
             hdr[H_CYCLES] = cycles
@@ -117,13 +174,19 @@ class SessionCycle:
             sup.freeze(end.status, end.reason)
         return end, flags
 
-    def update(self, q: float, w: float, tau: float, now: float) -> float:
-        """This period's torque: the loop's, supervised, or the stop ramp's."""
+    def update(
+        self, q: float, w: float, tau: float, now: float, held: float | None = None
+    ) -> float:
+        """This period's torque: the loop's, supervised, or the stop ramp's (``held``: a
+        missed period, over which the drive held that torque)."""
         loop, sup = self.loop, self.supervisor
         ramp = sup.ramp
         if ramp is None:
-            u = loop.step(q, w, tau)
-            self.row = loop.row
+            u = loop.step(q, w, tau, held)
+            row = self.row = loop.row
+            s = u + row[3] + row[4] + row[6] + row[7] + row[8] + row[9]
+            if s - s != 0.0:  # one of them is NaN or ±inf (or their sum overflowed)
+                check_loop_values(u, row)
             self.phase = float(loop.seeker.phase)
             if loop.evaluation is not None:
                 self.evaluated(now)
@@ -136,6 +199,26 @@ class SessionCycle:
         self.phase = float(STOPPING)
         self.flags = FLAG_STOPPING | loop.limits.flags
         return u
+
+    def catch_up(self, q: float, w: float, tau: float, now: float, late: float) -> None:
+        """Step the loop through the periods the worker missed (bounded), each with the
+        measurement interpolated between the last read and this one, and the torque the
+        drive held meanwhile; each is recorded (flag ``caught up``) at the deadline it had
+        (``mono``) and how late it was stepped (``late``)."""
+        period = self.period
+        m = int(late / period)  # as many as the pacer skipped
+        if m * period > self.catch_up_max:
+            raise StalledError(late, self.catch_up_max)
+        qp, wp, tp = self.prev
+        held = self.host.machine.last_command
+        rwrite, sid = self.host.ring.write, self.session
+        first = now - late  # the deadline of the first period missed
+        for i in range(m):
+            f = (i + 1) / (m + 1)
+            self.update(qp + (q - qp) * f, wp + (w - wp) * f, tp + (tau - tp) * f, now, held)
+            at = first + i * period
+            flags = float(self.flags | FLAG_CATCHUP)
+            rwrite((*self.row, held, self.phase, flags, (now - at) * 1e6, at, sid))
 
     def evaluated(self, now: float) -> None:
         """The seeker has just measured a candidate: tell the parent."""
@@ -157,3 +240,18 @@ class SessionCycle:
              late * 1e6, now, self.session)
         )  # fmt: skip
         return end
+
+
+def raise_measurement(q: float, w: float, tau: float) -> None:
+    """Name the non-finite measurement (the caller found one)."""
+    for what, value in (("angle q", q), ("velocity w", w), ("torque τ", tau)):
+        if not math.isfinite(value):
+            raise NonFiniteError(what, value, measured=True)
+
+
+def check_loop_values(u: float, row: tuple[float, ...]) -> None:
+    """Raise :class:`NonFiniteError` for the first non-finite value of this step, if any."""
+    for i, what in LOOP_VALUES:
+        value = u if i == 5 else row[i]
+        if not math.isfinite(value):
+            raise NonFiniteError(what, value, measured=False)

@@ -111,7 +111,7 @@ def test_bad_requests_are_refused_where_they_are_made(worker):
     end = follow(worker).end
     assert end is not None and end.status == "stopped"
     assert worker.state == "idle"
-    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null"))
+    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null", torque_constant=0.1))
     with pytest.raises(ValueError, match="torque sensor"):
         odrive.start_session(scenario(controller={"kind": "measured"}), "x")
 
