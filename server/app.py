@@ -19,7 +19,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI
 
-from server import api
+from server import api, guard
 from server.api.health import VERSION
 from server.runtime import Runtime
 from server.security import LoginLimiter
@@ -91,8 +91,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=VERSION,
         summary="Extremum-seeking exercise machine: sessions, users, setpoints, live telemetry.",
         lifespan=lifespan,
+        docs_url=None,  # served by server.api.docs: local assets, a strict policy
+        redoc_url=None,
     )
     app.state.settings = settings
+    guard.install(app, settings)
     api.mount(app)
     if settings.dashboard:
         from webui.pages import router as pages

@@ -15,12 +15,15 @@ dependencies built on these: :mod:`server.api.deps`; the dashboard's proxy uses 
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections import defaultdict, deque
+from concurrent.futures import ThreadPoolExecutor
 from typing import Literal
 
 from fastapi import HTTPException, Request, WebSocket, status
+from starlette.requests import HTTPConnection
 
 from sessions.store import AccountRecord, Store
 
@@ -74,7 +77,7 @@ def client_keys(request: Request | WebSocket, login: str) -> list[str]:
     return [f"addr:{host}", f"addr+login:{host}:{login.strip().lower()}"]
 
 
-def own_origins(request: Request | WebSocket, extra: list[str]) -> set[str]:
+def own_origins(request: Request | WebSocket | HTTPConnection, extra: list[str]) -> set[str]:
     """Origins that count as the server itself: its Host header under http and https."""
     host = request.headers.get("host", "")
     return {f"http://{host}", f"https://{host}", *extra}
@@ -93,7 +96,7 @@ def bearer(request: Request | WebSocket) -> str | None:
 
 
 def identify(
-    request: Request | WebSocket, store: Store
+    request: Request | WebSocket | HTTPConnection, store: Store
 ) -> tuple[AccountRecord | None, Literal["bearer", "cookie", "none"]]:
     """The account behind a request and how it proved it (bearer token first)."""
     token = bearer(request)
@@ -103,6 +106,28 @@ def identify(
     if cookie:
         return store.tokens.resolve(cookie), "cookie"
     return None, "none"
+
+
+# The login checks' own threads: a store lookup each, never queued behind the default pool's
+# work (password hashing, telemetry exports), so an e-stop's login check is never waited for.
+_AUTH_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="ergoseek-auth")
+
+
+async def identify_async(
+    conn: Request | WebSocket | HTTPConnection, store: Store
+) -> tuple[AccountRecord | None, Literal["bearer", "cookie", "none"]]:
+    """:func:`identify` on the login checks' own threads (the store lookup blocks)."""
+    if bearer(conn) is None and not conn.cookies.get(COOKIE):
+        return None, "none"  # nothing to look up
+    return await asyncio.get_running_loop().run_in_executor(_AUTH_POOL, identify, conn, store)
+
+
+def cookie_write_allowed(request: Request | HTTPConnection, extra: list[str]) -> bool:
+    """A change made with the login cookie: only with an Origin, and one of ours (a browser
+    always sends Origin on a cross-origin or non-GET fetch; a request without one is not from
+    our page, whatever its Referer says)."""
+    origin = request.headers.get("origin")
+    return origin is not None and origin in own_origins(request, extra)
 
 
 def unauthorized(detail: str = "not logged in") -> HTTPException:

@@ -69,12 +69,15 @@ async def token(
 
 
 @router.post("/logout", status_code=204, summary="End this login (cookie or bearer token)")
-async def logout(request: Request, store: StoreDep, _: Viewer) -> Response:
+async def logout(request: Request, store: StoreDep, settings: SettingsDep, _: Viewer) -> Response:
     secret = bearer(request) or request.cookies.get(COOKIE)
     if secret:
         await asyncio.to_thread(store.tokens.revoke, secret)
     response = Response(status_code=204)
-    response.delete_cookie(COOKIE, path="/")
+    # deleted with the attributes it was set with (a browser matches on them)
+    response.delete_cookie(
+        COOKIE, path="/", httponly=True, samesite="strict", secure=settings.cookie_secure
+    )
     return response
 
 

@@ -67,6 +67,10 @@ def serve(settings: Settings) -> int:
         lifespan="on",
         log_level="info",
         timeout_graceful_shutdown=5,
+        # the client's address is the socket's unless a proxy is configured and trusted
+        proxy_headers=settings.proxy_headers,
+        forwarded_allow_ips=list(settings.forwarded_allow_ips),
+        server_header=False,
     )
     server = uvicorn.Server(config)
     server.run()

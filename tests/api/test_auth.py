@@ -94,7 +94,11 @@ def test_cookie_login_logout_and_cross_site_changes(server: ServerProcess) -> No
         assert evil.status_code == 403
         own = c.post("/api/v1/users", json={"name": "Y"}, headers={"Origin": server.url})
         assert own.status_code == 201
-        assert c.post("/api/v1/auth/logout").status_code == 204
+        assert c.post("/api/v1/auth/logout").status_code == 403  # no Origin: not our page
+        out = c.post("/api/v1/auth/logout", headers={"Origin": server.url})
+        assert out.status_code == 204
+        gone = out.headers["set-cookie"].lower()  # deleted with the attributes it was set with
+        assert "max-age=0" in gone and "httponly" in gone and "samesite=strict" in gone
         assert c.get("/api/v1/auth/me").status_code == 401
 
 
