@@ -92,3 +92,65 @@ def garbage(port: int, payload: bytes, timeout: float = 2.0) -> int | None:
         with contextlib.suppress(OSError):
             return _status(s.recv(4096))
     return None
+
+
+# -- a bounded flood, for the e-stop benchmark ------------------------------------------------
+GARBAGE: tuple[bytes, ...] = (
+    b"\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03" + bytes(64),  # a TLS hello on plain HTTP
+    b"\xff\xfe\x00 not http at all\r\n\r\n",
+    b"GET /" + b"A" * 8000 + b" HTTP/1.1\r\nHost: x\r\n\r\n",
+    b"POST /api/v1/auth/login HTTP/1.1\r\nHost: {host}\r\nContent-Length: 9\r\n\r\n{not json",
+    b"POST /api/v1/auth/token HTTP/1.1\r\nHost: {host}\r\nContent-Type: application/json\r\n"
+    b"Content-Length: 38\r\n\r\n" + b'{"login":"trainer","password":"wrong"}',
+    b'POST /api/v1/users HTTP/1.1\r\nHost: {host}\r\nContent-Length: 11\r\n\r\n{"name":1}]',
+    b"GET /api/v1/machine HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer forged\r\n\r\n",
+    b"POST /api/v1/machine/estop HTTP/1.1\r\nHost: evil.example\r\nContent-Length: 0\r\n\r\n",
+    b"GET /../../etc/passwd HTTP/1.1\r\nHost: {host}\r\n\r\n",
+)
+
+
+def flood(port: int, seconds: float, rate: float, bodies_per_s: float, body_mb: int) -> dict:
+    """For ``seconds``: ``rate`` requests a second of :data:`GARBAGE` (one connection each),
+    and, from a second thread, ``body_mb`` MB bodies (announced, then chunked) at most
+    ``bodies_per_s`` a second. Bounded in time and count; loopback only. What it got back."""
+    import threading
+    from collections import Counter
+
+    host = f"127.0.0.1:{port}".encode()
+    end = time.monotonic() + seconds
+    codes: Counter[str] = Counter()
+    lock = threading.Lock()
+
+    def note(code: int | None) -> None:
+        with lock:
+            codes[str(code)] += 1
+
+    def bodies() -> None:
+        n = 0
+        while time.monotonic() < end and n < bodies_per_s * seconds:
+            chunked = bool(n % 2)
+            how = (
+                {"Transfer-Encoding": "chunked"}
+                if chunked
+                else {"Content-Length": str(body_mb * MB)}
+            )
+            head = request_head(
+                "POST", "/api/v1/users", host.decode(), {"Content-Type": "application/json", **how}
+            )
+            r = raw_request(port, head, body_size=body_mb * MB, chunked=chunked, timeout=5)
+            note(r.status)
+            n += 1
+            time.sleep(1.0 / bodies_per_s)
+
+    streamer = threading.Thread(target=bodies, daemon=True)
+    streamer.start()
+    sent = 0
+    t_next = time.monotonic()
+    while time.monotonic() < end and sent < rate * seconds:
+        payload = GARBAGE[sent % len(GARBAGE)].replace(b"{host}", host)
+        note(garbage(port, payload, timeout=2.0))
+        sent += 1
+        t_next += 1.0 / rate
+        time.sleep(max(0.0, t_next - time.monotonic()))
+    streamer.join(10)
+    return {"garbage_sent": sent, "codes": dict(codes)}
