@@ -21,6 +21,8 @@ from sessions.store.passwords import check_password
 from sessions.store.records import AccountRecord
 
 _LOGIN = re.compile(r"[a-z0-9][a-z0-9._@-]*")
+
+
 def _login(value: Any) -> str:
     login = v.text("login", value, max_len=64).lower()
     if not _LOGIN.fullmatch(login):
