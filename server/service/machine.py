@@ -23,6 +23,7 @@ from pydantic import BaseModel
 
 from server.service.live import LiveHub
 from server.service.pump import Pump
+from server.service.reasons import one_line
 from server.service.session import ActiveSession, LiveSession
 from sessions.codes import phase_name
 from sessions.machine.spec import MachineSpec
@@ -164,12 +165,13 @@ class MachineService:
             worker.start_session(session.cfg, session.tag)
             await asyncio.wait_for(session.started.wait(), START_TIMEOUT)
         except (WorkerError, ValueError, TimeoutError) as exc:
-            reason = session.rejected or str(exc) or "the worker did not start the session"
+            reason = one_line(session.rejected or str(exc)) or "the worker did not start it"
             await self.pump.finish(session, "faulted", None, reason)
             raise BusyError(f"the machine refused the session: {reason}") from None
         if session.rejected is not None:
-            await self.pump.finish(session, "faulted", None, session.rejected)
-            raise BusyError(f"the machine refused the session: {session.rejected}")
+            reason = one_line(session.rejected)
+            await self.pump.finish(session, "faulted", None, reason)
+            raise BusyError(f"the machine refused the session: {reason}")
 
     def stop(self, session_id: int) -> None:
         """A controlled stop of the running session ``session_id`` (409 if it is not)."""
@@ -183,11 +185,16 @@ class MachineService:
         self._require_worker().estop()
 
     async def reset(self) -> None:
-        """Clear a latched e-stop or fault; a lost worker is replaced. Never starts motion."""
+        """Clear a latched e-stop or fault; a lost worker is replaced. Never starts motion;
+        refused (409) while a session runs: a reset there would do nothing."""
         async with self._lock:
+            if self.active is not None:
+                raise BusyError(f"session {self.active.db_id} is running: stop it first")
             if self.worker is None or self.lost is not None:
-                if self.worker is not None:
-                    await asyncio.to_thread(self.worker.shutdown)
+                old, self.worker = self.worker, None
+                self.pump.detach()  # nobody reads the old worker while it is taken down
+                if old is not None:
+                    await asyncio.to_thread(old.shutdown)
                 await self._spawn()
                 return
             self.worker.reset()
@@ -208,7 +215,7 @@ class MachineService:
             backend=self.backend,
             state=state,
             armed=state in ("running", "stopping"),
-            fault=self.lost or (st.fault if st else None),
+            fault=one_line(self.lost or (st.fault if st else None)),
             session_id=active.db_id if active is not None else None,
             heartbeat_age_ms=(
                 st.heartbeat_age * 1e3 if st and st.heartbeat_age is not None else None

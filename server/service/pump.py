@@ -66,6 +66,14 @@ class Pump:
         self.reader = worker.open_reader("now")
         self.lost = None
 
+    def detach(self) -> None:
+        """Follow no worker (the service is replacing it); :attr:`lost` stays until
+        :meth:`attach`."""
+        self.worker = None
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None
+
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="ergoseek-pump")
 
