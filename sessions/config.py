@@ -24,6 +24,7 @@ NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 SEED_LIMIT = 2**63  # seeds are 0 ≤ seed < 2^63: numpy's SeedSequence takes them, and every
 # database's 64-bit integer holds them
 
+
 class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
