@@ -25,6 +25,7 @@ from server.api.health import VERSION
 from server.runtime import Runtime
 from server.security import LoginLimiter, device_key
 from server.service import LiveHub, MachineService
+from server.service.accounts import LiveGate
 from server.settings import Settings
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.store import Store, display_url, open_server_store
@@ -69,7 +70,10 @@ async def _running(app: FastAPI, settings: Settings) -> AsyncIterator[Runtime]:
         key = await asyncio.to_thread(device_key, _store_dir(store))
         limiter = LoginLimiter(settings.login_attempts, settings.login_window_s, key)
         await asyncio.to_thread(store.tokens.purge)  # expired and revoked logins
-        runtime = Runtime(settings, store, hub, machine, limiter, recovered, emulator)
+        gate = LiveGate(settings.live_max_per_account, settings.live_max_total)
+        runtime = Runtime(
+            settings, store, hub, machine, limiter, recovered, emulator, live_gate=gate
+        )
         await machine.open()
         if settings.dashboard:
             from webui.dashboard import start_dashboard

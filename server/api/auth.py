@@ -7,7 +7,7 @@ from datetime import timedelta
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 
-from server.api.deps import LimiterDep, SettingsDep, StoreDep, Viewer
+from server.api.deps import LimiterDep, RuntimeDep, SettingsDep, StoreDep, Viewer
 from server.api.schemas import LoginIn, Me, TokenOut
 from server.security import (
     COOKIE,
@@ -124,10 +124,13 @@ async def token(
 
 
 @router.post("/logout", status_code=204, summary="End this login (cookie or bearer token)")
-async def logout(request: Request, store: StoreDep, settings: SettingsDep, _: Viewer) -> Response:
+async def logout(
+    request: Request, store: StoreDep, settings: SettingsDep, runtime: RuntimeDep, account: Viewer
+) -> Response:
     secret = bearer(request) or request.cookies.get(COOKIE)
     if secret:
         await asyncio.to_thread(store.tokens.revoke, secret)
+        runtime.accounts.changed(account.id, "logout")  # its connections close now
     response = Response(status_code=204)
     # deleted with the attributes it was set with (a browser matches on them)
     response.delete_cookie(

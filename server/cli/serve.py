@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
@@ -50,6 +51,44 @@ def settings_from(args: argparse.Namespace, **extra: Any) -> Settings:
     return settings
 
 
+def _server_class() -> type:
+    import logging
+    import signal
+
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, whose shutdown first brings the machine to zero torque and lets
+        every live client see that (the last record, the session's end) before the
+        connections are closed; the session's reason names the signal."""
+
+        def __init__(self, config: uvicorn.Config, app: Any) -> None:
+            super().__init__(config)
+            self.app = app
+            self.signal_name: str | None = None
+
+        def handle_exit(self, sig: int, frame: Any) -> None:
+            with contextlib.suppress(ValueError):
+                self.signal_name = self.signal_name or signal.Signals(sig).name
+            super().handle_exit(sig, frame)
+
+        async def shutdown(self, sockets: Any = None) -> None:
+            runtime = getattr(self.app.state, "runtime", None)
+            if runtime is not None:
+                why = f" ({self.signal_name})" if self.signal_name else ""
+                try:
+                    await runtime.machine.halt(f"server shut down{why}")
+                    await runtime.hub.flush(LIVE_FLUSH_S)
+                except Exception:  # the rest of the shutdown must still happen
+                    logging.getLogger("ergoseek.server").exception("halting the machine")
+            await super().shutdown(sockets)
+
+    return Server
+
+
+LIVE_FLUSH_S = 1.0  # s the live clients get to receive the end of a session at shutdown
+
+
 def serve(settings: Settings) -> int:
     import logging
 
@@ -72,7 +111,7 @@ def serve(settings: Settings) -> int:
         forwarded_allow_ips=list(settings.forwarded_allow_ips),
         server_header=False,
     )
-    server = uvicorn.Server(config)
+    server = _server_class()(config, app)
     server.run()
     return 0 if server.started else 1
 

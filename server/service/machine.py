@@ -112,14 +112,21 @@ class MachineService:
         self.pump.attach(worker)
         log.info("worker %s ready (%s)", worker.pid, ready.fault or "no fault" if ready else "")
 
-    async def close(self) -> None:
-        """Zero torque, the running session ends as stopped, the worker exits; nothing lost."""
+    async def halt(self, reason: str = "server shut down") -> None:
+        """Zero torque now; the running session ends as stopped for ``reason``, its last
+        records and its end stored and published (the first step of a shutdown, while the
+        live clients are still connected to see it)."""
         worker, pump = self.worker, self.pump
         if worker is not None and pump.session is not None:
             with contextlib.suppress(WorkerError):
-                worker.stop(immediate=True)
+                worker.stop(immediate=True, reason=reason)
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(pump.session.ended.wait(), 3.0)
+
+    async def close(self) -> None:
+        """Zero torque, the running session ends as stopped, the worker exits; nothing lost."""
+        worker, pump = self.worker, self.pump
+        await self.halt()
         await pump.stop()
         if worker is not None:
             events = await asyncio.to_thread(worker.shutdown)

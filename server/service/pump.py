@@ -159,6 +159,7 @@ class Pump:
             self._note(session, ev)
         elif isinstance(ev, SessionEnded) and mine:
             self.drain_ring()
+            self.hub.publish_last(ev.last_seq)  # the zero-torque record, to every client
             reason = None if ev.status == "completed" else ev.reason
             await self.finish(session, ev.status, ev.summary, reason)  # type: ignore[arg-type]
         elif isinstance(ev, WorkerLost):

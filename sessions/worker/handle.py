@@ -285,9 +285,10 @@ class Worker:
         self._starting = (session_id, cfg)
         self._send(StartSession(cfg, session_id))
 
-    def stop(self, immediate: bool = False) -> None:
-        """End the running session: torque ramped out (or zero at once with ``immediate``)."""
-        self._send(Stop(immediate))
+    def stop(self, immediate: bool = False, reason: str | None = None) -> None:
+        """End the running session: torque ramped out (or zero at once with ``immediate``);
+        ``reason`` is the session's (default: the operator's stop)."""
+        self._send(Stop(immediate, reason))
 
     def estop(self) -> float:
         """Emergency stop: the worker writes zero torque on its next cycle and latches until

@@ -30,9 +30,11 @@ class StartSession:
 
 @dataclass(frozen=True)
 class Stop:
-    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``."""
+    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``;
+    ``reason`` says who asked (default: the operator)."""
 
     immediate: bool = False
+    reason: str | None = None
 
 
 @dataclass(frozen=True)
