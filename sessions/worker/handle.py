@@ -48,7 +48,6 @@ from sessions.summary import SessionSummary
 from sessions.worker.channel import EventReceiver
 from sessions.worker.messages import (
     CandidateMeasured,
-    EStop,
     EStopped,
     Event,
     Faulted,
@@ -78,6 +77,7 @@ from sessions.worker.ring import (
     RingInfo,
     RingReader,
     TelemetryRing,
+    stamp_estop,
 )
 
 
@@ -292,14 +292,18 @@ class Worker:
 
     def estop(self) -> float:
         """Emergency stop: the worker writes zero torque on its next cycle and latches until
-        :meth:`reset`. Returns the monotonic time the request was sent."""
+        :meth:`reset`. Through the e-stop line of the ring's header (the worker looks at it
+        every period, before its command pipe), so nothing queued can delay it. Returns the
+        monotonic time it was asked."""
+        if self._ring is None or self._closed:
+            raise WorkerError("the worker is not running")
         t = time.monotonic()
-        self._send(EStop())
+        stamp_estop(self._ring.view.hdr)
         return t
 
     def reset(self) -> None:
         """Clear a latched e-stop or fault (never restarts motion)."""
-        self._send(Reset())
+        self._send(Reset(time.monotonic_ns()))
 
     def _send(self, cmd: object) -> None:
         if self._cmd is None or self._closed:
