@@ -189,7 +189,8 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     loads = [os.getloadavg()]
-    srv = start_server()
+    room = str(args.clients + 8)  # the live caps, with room for these clients
+    srv = start_server(env={"ERGOSEEK_LIVE_MAX_PER_ACCOUNT": room, "ERGOSEEK_LIVE_MAX_TOTAL": room})
     out: dict[str, Any] = {}
     try:
         with srv.client("trainer") as c:

@@ -118,6 +118,14 @@ class Settings(BaseSettings):
         default_factory=list,
         description="addresses of the reverse proxies trusted with forwarded headers",
     )
+    estop_gate: bool = Field(
+        True,
+        description="answer POST /api/v1/machine/estop in a process of its own that owns the "
+        "listening socket, ahead of the web server (server/gate.py)",
+    )
+    estop_gate_nice: int = Field(
+        -10, ge=-20, le=19, description="the e-stop gate's scheduling niceness (if allowed)"
+    )
     live_max_per_account: int = Field(
         8, ge=1, le=1000, description="open /api/v1/live connections one account may hold"
     )

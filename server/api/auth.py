@@ -92,10 +92,12 @@ async def login(
     store: StoreDep,
     limiter: LimiterDep,
     settings: SettingsDep,
+    runtime: RuntimeDep,
 ) -> Me:
     account = await _authenticate(request, response, body, store, limiter)
     lifetime = timedelta(hours=settings.session_hours)
     token, _ = await asyncio.to_thread(_issue, store, account.id, "cookie", lifetime)
+    runtime.accounts.changed(account.id, "login")
     response.set_cookie(
         COOKIE,
         token,
@@ -116,10 +118,12 @@ async def token(
     store: StoreDep,
     limiter: LimiterDep,
     settings: SettingsDep,
+    runtime: RuntimeDep,
 ) -> TokenOut:
     account = await _authenticate(request, response, body, store, limiter)
     lifetime = timedelta(hours=settings.session_hours)
     secret, record = await asyncio.to_thread(_issue, store, account.id, "bearer", lifetime)
+    runtime.accounts.changed(account.id, "login")
     return TokenOut(access_token=secret, expires_at=record.expires_at)
 
 

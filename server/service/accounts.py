@@ -18,7 +18,7 @@ from typing import Literal
 
 log = logging.getLogger("ergoseek.accounts")
 
-ChangeKind = Literal["role", "disabled", "password", "deleted", "logout"]
+ChangeKind = Literal["role", "disabled", "password", "deleted", "logout", "login"]
 
 
 @dataclass(frozen=True)
