@@ -29,6 +29,7 @@ import multiprocessing as mp
 import os
 import queue
 import random
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -40,7 +41,7 @@ from _server import ServerProcess, peak_rss_mb, start_server
 from websockets.sync.client import connect
 
 from sessions.codes import FLAG_ESTOP
-from testing.flood import flood
+from testing.flood import flood, request_head
 
 
 class EStopWatcher:
@@ -88,12 +89,16 @@ def trial(srv: ServerProcess, watch: EStopWatcher, c: httpx.Client, uid: int) ->
     sid = r.json()["id"]
     time.sleep(random.uniform(0.2, 0.5))
     _drain(watch.rows)
-    headers = srv.headers("trainer")
-    with httpx.Client(base_url=srv.url, headers=headers, timeout=10) as fresh:  # a new connection
-        t0 = time.monotonic()
-        reply = fresh.post("/api/v1/machine/estop")
-        answered = time.monotonic() - t0
-    assert reply.status_code == 202, reply.text
+    request = request_head(
+        "POST", "/api/v1/machine/estop", f"127.0.0.1:{srv.port}",
+        {**srv.headers("trainer"), "Content-Length": "0"},
+    )  # fmt: skip
+    t0 = time.monotonic()  # then: a new connection, the request, its answer
+    with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as s:
+        s.sendall(request)
+        reply = s.recv(4096)
+    answered = time.monotonic() - t0
+    assert reply.startswith(b"HTTP/1.1 202"), reply
     zero = watch.rows.get(timeout=10) - t0
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline:  # the session's end is stored before the next one
@@ -104,8 +109,16 @@ def trial(srv: ServerProcess, watch: EStopWatcher, c: httpx.Client, uid: int) ->
     return {"zero": zero, "reply": answered}
 
 
+def _ordinary() -> None:
+    """A load process runs at the ordinary priority, whatever the measuring one has."""
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+
+
 def _live_clients(url: str, headers: dict[str, str], n: int, stop: Any, counts: Any) -> None:
     import websockets
+
+    _ordinary()
 
     async def one(i: int) -> None:
         async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
@@ -138,6 +151,7 @@ def live_clients(srv: ServerProcess, n: int, rate: float) -> Iterator[Any]:
 
 
 def _flood(port: int, seconds: float, rate: float, bodies: float, mb: int, out: Any) -> None:
+    _ordinary()
     out.put(flood(port, seconds, rate, bodies, mb))
 
 
@@ -186,6 +200,13 @@ def main() -> None:
     ap.add_argument("--flood-rate", type=float, default=200.0, help="garbage requests/s")
     ap.add_argument("--bodies", type=float, default=4.0, help="big bodies/s")
     ap.add_argument("--body-mb", type=int, default=50)
+    ap.add_argument(
+        "--client-nice",
+        type=int,
+        default=None,
+        help="the measuring client's niceness, set after the server started (the server and "
+        "the load keep theirs): isolates the server's latency from a loaded VM's",
+    )
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     loads = [os.getloadavg()]
@@ -195,6 +216,9 @@ def main() -> None:
     try:
         with srv.client("trainer") as c:
             uid = c.post("/api/v1/users", json={"name": "estop-bench"}).json()["id"]
+        if args.client_nice is not None:
+            os.setpriority(os.PRIO_PROCESS, 0, args.client_nice)
+        out["client_nice"] = os.getpriority(os.PRIO_PROCESS, 0)
         watch = EStopWatcher(srv)
         out["idle"] = phase(srv, watch, uid, args.trials)
         loads.append(os.getloadavg())
