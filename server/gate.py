@@ -32,6 +32,7 @@ import socket
 import sys
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import httptools
@@ -48,6 +49,7 @@ HEAD_WAIT_S = 2.0
 MAX_PEEKING = 1024  # connections being peeked at once; past it, handed over unpeeked
 COOKIE = "ergoseek_session"  # (server.security.COOKIE; not imported: the gate stays small)
 ROLES_ALLOWED = frozenset({"trainer", "admin"})
+PROCESS_NAME = "ergoseek-gate"
 
 
 @dataclass(frozen=True)
@@ -367,6 +369,8 @@ def gate_main(listener: socket.socket, link: socket.socket, cfg: GateConfig) -> 
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the web process decides when we go
+    with contextlib.suppress(OSError):  # a name ps and the tests can tell from the worker's
+        Path("/proc/self/comm").write_text(PROCESS_NAME)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     if cfg.nice:
         with contextlib.suppress(OSError):  # refused without the privilege: stay as we are
@@ -401,6 +405,8 @@ class GateLink:
         self.mine.setblocking(False)
         self._ring: str | None = None
         self.tasks: set[asyncio.Task[Any]] = set()
+        self.closing = False
+        self.fallback: asyncio.Server | None = None
 
     def serve(self, loop: asyncio.AbstractEventLoop, protocol: Any) -> None:
         """From now on, every connection the gate hands over is served by ``protocol()``."""
@@ -412,10 +418,10 @@ class GateLink:
                 except (BlockingIOError, InterruptedError):
                     return
                 except OSError:
+                    fds = []
+                if not fds:  # the gate is gone: accept on the socket ourselves
                     loop.remove_reader(self.mine.fileno())
-                    return
-                if not fds:  # the gate is gone
-                    loop.remove_reader(self.mine.fileno())
+                    self._fallback(loop, protocol)
                     return
                 for fd in fds:
                     conn = socket.socket(fileno=fd)
@@ -424,6 +430,19 @@ class GateLink:
                     task.add_done_callback(self.tasks.discard)
 
         loop.add_reader(self.mine.fileno(), take)
+
+    def _fallback(self, loop: asyncio.AbstractEventLoop, protocol: Any) -> None:
+        """Without a gate the server still listens (e-stops then go through the API route)."""
+        if self.closing:
+            return
+        log.error("the e-stop gate exited: the web server accepts connections itself")
+
+        async def listen() -> None:
+            self.fallback = await loop.create_server(protocol, sock=self.listener)
+
+        task = loop.create_task(listen())
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
 
     def logins_changed(self, account_id: int) -> None:
         """Logins of ``account_id`` changed (issued, revoked, role, disabled, deleted): the
@@ -439,6 +458,9 @@ class GateLink:
                 self._ring = name
 
     def close(self, timeout: float = 2.0) -> None:
+        self.closing = True
+        if self.fallback is not None:
+            self.fallback.close()
         with contextlib.suppress(OSError):
             self.mine.send(b"Q")
         self.proc.join(timeout)

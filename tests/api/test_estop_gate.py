@@ -8,9 +8,11 @@ e-stop. Against a real ``ergoseek serve``."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import time
+from pathlib import Path
 
 import httpx
 import pytest
@@ -123,3 +125,31 @@ def test_the_gate_forgets_an_ended_login_at_once(server: ServerProcess) -> None:
     with server.client("admin") as c:
         c.patch(f"/api/v1/accounts/{acc['id']}", json={"disabled": True}).raise_for_status()
     assert httpx.post(url, headers=h[2]).status_code == 401  # disabled: at once
+
+
+def _gate_pid(server_pid: int) -> int | None:
+    for entry in Path("/proc").iterdir():
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            stat = (entry / "stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == server_pid and (entry / "comm").read_text().strip() == "ergoseek-gate":
+                return int(entry.name)
+    return None
+
+
+def test_without_its_gate_the_server_still_listens(server: ServerProcess) -> None:
+    # (last in this module: the gate does not come back)
+    gate = _gate_pid(server.pid)
+    assert gate is not None
+    os.kill(gate, signal.SIGKILL)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        with contextlib.suppress(httpx.HTTPError):
+            if httpx.get(server.url + "/healthz", timeout=2).status_code == 200:
+                break
+        time.sleep(0.1)
+    sid = _session(server)
+    r = httpx.post(server.url + "/api/v1/machine/estop", headers=server.headers("trainer"))
+    assert r.status_code == 202  # now through the API route
+    assert server.wait_status(sid, {"stopped"}, 20)["session"]["abort_reason"] == "e-stop"
+    assert "the e-stop gate exited" in server.log()
