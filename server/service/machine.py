@@ -201,7 +201,10 @@ class MachineService:
                 old, self.worker = self.worker, None
                 self.pump.detach()  # nobody reads the old worker while it is taken down
                 if old is not None:
-                    await asyncio.to_thread(old.shutdown)
+                    try:
+                        await asyncio.to_thread(old.shutdown)
+                    except Exception:  # what is left of it must not keep the machine down
+                        log.exception("taking down the lost worker")
                 await self._spawn()
                 return
             self.worker.reset()

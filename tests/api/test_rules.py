@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from datetime import UTC, datetime, timedelta
 
@@ -114,9 +115,24 @@ def test_a_replaced_worker_leaves_no_traceback(server: ServerProcess, uid: int) 
         assert wpid is not None
         os.kill(wpid, signal.SIGKILL)
         server.wait_status(sid, {"aborted"}, 10)
-        for _ in range(3):  # reset replaces the worker while the pump follows it
-            assert c.post("/api/v1/machine/reset").status_code == 202
-            time.sleep(0.3)
+        done = threading.Event()
+
+        def watch() -> None:  # a status poller, as the dashboard is, all through the resets
+            with server.client("viewer") as v:
+                while not done.is_set():
+                    v.get("/api/v1/machine")
+
+        watchers = [threading.Thread(target=watch) for _ in range(3)]
+        for w in watchers:
+            w.start()
+        try:
+            for _ in range(3):  # reset replaces the worker while the pump follows it
+                assert c.post("/api/v1/machine/reset").status_code == 202
+                time.sleep(0.3)
+        finally:
+            done.set()
+            for w in watchers:
+                w.join()
         assert c.get("/api/v1/machine").json()["state"] == "idle"
         again = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 1})
         assert again.status_code == 201
