@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import os
+import socket
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -106,9 +107,52 @@ class Settings(BaseSettings):
     )
     login_attempts: int = Field(5, ge=1, description="failed logins allowed per window")
     login_window_s: float = Field(300.0, gt=0, description="failed-login window, s")
+    # what a client may send, and whom the server believes
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="Host names the server answers to besides its loopback names and bind "
+        "address ('*': any; '*.example.org': a domain's subdomains)",
+    )
+    max_body_bytes: int = Field(
+        128 * 1024,
+        ge=4096,
+        le=64 * 1024 * 1024,
+        description="largest request body accepted (413 above it, before it is read)",
+    )
+    proxy_headers: bool = Field(
+        False, description="believe X-Forwarded-For/-Proto from forwarded_allow_ips"
+    )
+    forwarded_allow_ips: list[str] = Field(
+        default_factory=list,
+        description="addresses of the reverse proxies trusted with forwarded headers",
+    )
+    estop_gate: bool = Field(
+        True,
+        description="answer POST /api/v1/machine/estop in a process of its own that owns the "
+        "listening socket, ahead of the web server (server/gate.py)",
+    )
+    estop_gate_nice: int = Field(
+        -10, ge=-20, le=19, description="the e-stop gate's scheduling niceness (if allowed)"
+    )
+    live_max_per_account: int = Field(
+        8, ge=1, le=1000, description="open /api/v1/live connections one account may hold"
+    )
+    live_max_total: int = Field(
+        64, ge=1, le=10_000, description="open /api/v1/live connections in all"
+    )
     # what is served
     dashboard: bool = Field(True, description="serve the login page and the viser dashboard")
     demo: bool = Field(False, description="demo mode: simulated users seeded")
+
+    def host_names(self) -> list[str]:
+        """Every Host the server answers to: its loopback names, its bind address (a
+        wildcard bind adds this machine's name), and ``allowed_hosts``."""
+        names = ["127.0.0.1", "localhost", "::1", "[::1]"]
+        if self.host in ("0.0.0.0", "::", ""):
+            names += [socket.gethostname(), socket.getfqdn()]
+        else:
+            names += [self.host, f"[{self.host}]" if ":" in self.host else self.host]
+        return list(dict.fromkeys([*names, *self.allowed_hosts]))
 
     def store_url(self) -> str | None:
         """The database: ``database_url``, else SQLite in ``data_dir``, else the store's
@@ -149,6 +193,12 @@ class Settings(BaseSettings):
     def rig(self, spec: MachineSpec) -> Rig:
         """The machine ``spec`` drives, as the request policy sees it (:mod:`sessions.requests`)."""
         return Rig(self.machine, self.machine_config(), self.rate, spec.has_torque_sensor)
+
+    @model_validator(mode="after")
+    def _proxy(self) -> Settings:
+        if self.proxy_headers and not self.forwarded_allow_ips:
+            raise ValueError("proxy_headers needs forwarded_allow_ips (the proxies' addresses)")
+        return self
 
     @model_validator(mode="after")
     def _drive(self) -> Settings:

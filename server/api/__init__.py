@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
-from server.api import accounts, auth, errors, health, live, machine, sessions, users
+from server.api import accounts, auth, docs, errors, health, live, machine, sessions, users
 
 ROUTERS = (auth.router, accounts.router, users.router, sessions.router, machine.router, live.router)
 
@@ -16,3 +16,4 @@ def mount(app: FastAPI) -> None:
     for router in ROUTERS:
         app.include_router(router)
     app.include_router(health.router)
+    docs.mount(app)

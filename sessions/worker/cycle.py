@@ -3,8 +3,9 @@
     wait (pacer) → commands → read → step → supervise → write → publish
 
 - **wait**: :class:`sessions.worker.pacer.Pacer` (sleep, then spin, to the deadline);
-- **commands** and the process's own state (SIGTERM, the parent gone): the supervisor may end
-  the session at once; the cycle then writes its last record (zero torque) and returns;
+- **commands** (the e-stop line in the ring's header, every period; the command pipe) and
+  the process's own state (SIGTERM, the parent gone): the supervisor may end the session at
+  once; the cycle then writes its last record (zero torque) and returns;
 - **read** the machine, **step** the engine's loop (or, during a controlled stop, the stop
   ramp), **supervise** (limits, passivity, duration: :mod:`sessions.worker.supervisor`),
   **write** the torque;
@@ -41,9 +42,9 @@ from sessions.codes import FLAG_CATCHUP, FLAG_FAULT, FLAG_STOPPING, STOPPING
 from sessions.config import SessionConfig
 from sessions.loop import Loop
 from sessions.machine import MachineError
-from sessions.worker.messages import CandidateMeasured, Timing
+from sessions.worker.messages import CandidateMeasured, EStop, Timing
 from sessions.worker.pacer import Pacer, TimingRecorder
-from sessions.worker.ring import H_CYCLES, H_HEARTBEAT
+from sessions.worker.ring import H_CYCLES, H_ESTOP, H_HEARTBEAT
 from sessions.worker.supervisor import End, Supervisor
 
 if TYPE_CHECKING:
@@ -119,7 +120,12 @@ class SessionCycle:
             now, late = pacer.wait()
             self.cycles = cycles = self.cycles + 1
             ready = poll(0)
-            if ready or host.terminated or not cycles & PARENT_CHECK_MASK:
+            if (
+                ready
+                or host.terminated
+                or not cycles & PARENT_CHECK_MASK
+                or hdr[H_ESTOP] != host.estop_seen
+            ):
                 end, flags = self.commands(now, cycles, bool(ready))
                 if end is not None:
                     return self.last_record(end, flags, late, now)
@@ -159,6 +165,8 @@ class SessionCycle:
         something to look at: a command, SIGTERM, or the parent check every 8 cycles.)"""
         host, sup = self.host, self.supervisor
         end, flags = None, 0
+        if host.estop_requested():  # the e-stop line, before anything the pipe holds
+            return self.stop_now(*sup.command(EStop(), now))
         if ready:
             try:
                 end, flags = sup.command(host.cmds.recv(), now)
@@ -170,8 +178,11 @@ class SessionCycle:
             host.exit_reason = "parent died"
         if end is None:
             end = sup.upstream()
+        return self.stop_now(end, flags)
+
+    def stop_now(self, end: End | None, flags: int) -> tuple[End | None, int]:
         if end is not None:
-            sup.freeze(end.status, end.reason)
+            self.supervisor.freeze(end.status, end.reason)
         return end, flags
 
     def update(

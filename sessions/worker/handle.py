@@ -54,7 +54,6 @@ from sessions.summary import SessionSummary
 from sessions.worker.channel import EventReceiver
 from sessions.worker.messages import (
     CandidateMeasured,
-    EStop,
     EStopped,
     Event,
     Faulted,
@@ -84,6 +83,7 @@ from sessions.worker.ring import (
     RingInfo,
     RingReader,
     TelemetryRing,
+    stamp_estop,
 )
 
 EXIT_GRACE = 2.0  # s a worker that announced its exit may take to be gone before it is killed
@@ -297,20 +297,25 @@ class Worker:
         self._starting = (session_id, cfg)
         self._send(StartSession(cfg, session_id))
 
-    def stop(self, immediate: bool = False) -> None:
-        """End the running session: torque ramped out (or zero at once with ``immediate``)."""
-        self._send(Stop(immediate))
+    def stop(self, immediate: bool = False, reason: str | None = None) -> None:
+        """End the running session: torque ramped out (or zero at once with ``immediate``);
+        ``reason`` is the session's (default: the operator's stop)."""
+        self._send(Stop(immediate, reason))
 
     def estop(self) -> float:
         """Emergency stop: the worker writes zero torque on its next cycle and latches until
-        :meth:`reset`. Returns the monotonic time the request was sent."""
+        :meth:`reset`. Through the e-stop line of the ring's header (the worker looks at it
+        every period, before its command pipe), so nothing queued can delay it. Returns the
+        monotonic time it was asked."""
+        if self._ring is None or self._closed:
+            raise WorkerError("the worker is not running")
         t = time.monotonic()
-        self._send(EStop())
+        stamp_estop(self._ring.view.hdr)
         return t
 
     def reset(self) -> None:
         """Clear a latched e-stop or fault (never restarts motion)."""
-        self._send(Reset())
+        self._send(Reset(time.monotonic_ns()))
 
     def _send(self, cmd: object) -> None:
         if self._cmd is None or self._closed:

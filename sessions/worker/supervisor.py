@@ -164,8 +164,8 @@ class Supervisor:
         if isinstance(cmd, Stop):
             if cmd.immediate or self.ramp is not None:
                 host.machine.zero()
-                return End("stopped", "stopped at once by the operator"), 0
-            self.begin_stop("stopped", "stopped by the operator")
+                return End("stopped", cmd.reason or "stopped at once by the operator"), 0
+            self.begin_stop("stopped", cmd.reason or "stopped by the operator")
         elif isinstance(cmd, Shutdown):
             host.machine.zero()
             host.shutdown = True

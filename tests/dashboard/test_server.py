@@ -32,7 +32,7 @@ def app_client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]
     with open_store(url) as store:
         for login, (role, password) in ACCOUNTS.items():
             store.accounts.create(login, password, role)
-    app = create_app(Settings(database_url=url, machine="sim"))
+    app = create_app(Settings(database_url=url, machine="sim", allowed_hosts=["testserver"]))
     with TestClient(app) as client:
         yield client
 
@@ -137,7 +137,7 @@ def test_a_direct_connection_to_viser_cannot_act(app_client: TestClient) -> None
 
 def test_stop_is_idempotent(tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'db.sqlite3'}"
-    app = create_app(Settings(database_url=url, machine="sim"))
+    app = create_app(Settings(database_url=url, machine="sim", allowed_hosts=["testserver"]))
     with TestClient(app):
         dashboard = app.state.runtime.dashboard
         assert dashboard is not None
