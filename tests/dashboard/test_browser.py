@@ -18,6 +18,8 @@ The screenshot taken mid-session is kept in the test's tmp_path; with
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
 import re
@@ -30,6 +32,7 @@ from typing import Any
 
 import httpx
 import pytest
+import viser
 
 from testing.browser import (
     TRAINER,
@@ -47,7 +50,6 @@ from testing.browser import (
 )
 from testing.screenshot import DEFAULT_OUT as SCREENSHOT
 from tests.dashboard.conftest import VIEWER, VIEWER_PASSWORD
-from webui.dashboard import viser_server
 
 # The simulated person of this test and the optimum of their power τ(w)·w.
 TAU0, WMAX, A = 3.0, 10.0, 0.25
@@ -215,7 +217,8 @@ def test_the_socket_needs_the_login_and_our_origin(server: DemoServer, trainer: 
 
 def test_the_page_talks_to_this_server_only(server: DemoServer, trainer: Afternoon) -> None:
     # viser's ?websocket= override is blocked (CSP)
-    foreign = viser_server()
+    with contextlib.redirect_stdout(io.StringIO()):
+        foreign = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         foreign.gui.add_markdown("A FOREIGN DASHBOARD")
         lure = trainer.context.new_page()
