@@ -4,13 +4,15 @@ it who the account is (:meth:`webui.bridge.Bridge.upstream_headers`).
 
 - Refused before accept (HTTP 403 to the handshake) without a valid login (cookie or bearer
   token), with a cookie but no Origin, from another Origin, without viser's ``viser-v…``
-  subprotocol, or past :data:`MAX_CONNECTIONS`.
+  subprotocol, or past :data:`MAX_CONNECTIONS` in all or :data:`MAX_PER_ACCOUNT` for one
+  account.
 - The browser's subprotocol is echoed on accept and passed upstream (without it Chromium
   retries forever and viser rejects the version); upstream ``max_size`` is 64 MiB (the
   ``websockets`` default of 1 MiB kills the link on viser's first big message) and
   ``compression=None``. viser → browser frames (binary: zstd msgpack + raw arrays) are
   relayed untouched; browser → viser frames only if they are what a browser sends
-  (:func:`webui.frames.admit`: its camera, a value update): anything else is dropped and
+  (:func:`webui.frames.admit`: its camera, a value update) and no faster than
+  :data:`FRAME_RATE` a second (bursts to :data:`FRAME_BURST`): anything else is dropped and
   counted (logged once per connection).
 - An account demoted, disabled or deleted loses its open dashboards at once: the dashboard's
   watch re-reads the accounts every second, or as soon as it is told
@@ -46,12 +48,14 @@ from webui.frames import admit
 log = logging.getLogger("ergoseek.dashboard")
 
 MAX_SIZE = 64 * 2**20  # bytes, per message from viser
-MAX_CONNECTIONS = 32
+MAX_CONNECTIONS = 32  # open dashboards in all
+MAX_PER_ACCOUNT = 8  # … and of one account (a trainer's tabs and devices)
 RECHECK_S = 5.0  # s between checks of the login itself (logout, expiry)
 OPEN_TIMEOUT = 5.0
 SEND_TIMEOUT_S = 10.0  # a browser that takes longer to accept one frame is dropped
 SUBPROTOCOL_PREFIX = "viser-v"
 UPSTREAM_URI = "ws://localhost/dashboard"  # (on the Unix socket: only its path matters)
+FRAME_RATE, FRAME_BURST = 200.0, 400.0  # frames/s a browser may send (orbiting: ≤ 60/s)
 
 
 @dataclass(eq=False)
@@ -61,6 +65,17 @@ class Connection:
     account: AccountRecord
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     refused: Counter[str] = field(default_factory=Counter)
+    tokens: float = FRAME_BURST
+    refilled: float = 0.0
+
+    def spend(self, now: float) -> bool:
+        """A token bucket: whether one more frame may pass now."""
+        self.tokens = min(FRAME_BURST, self.tokens + (now - self.refilled) * FRAME_RATE)
+        self.refilled = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
 
     def still(self, now: AccountRecord | None) -> bool:
         """Whether the account is still as it was when this connection was let in."""
@@ -76,6 +91,9 @@ class Connections:
     @property
     def open(self) -> int:
         return len(self._open)
+
+    def of(self, account_id: int) -> int:
+        return sum(1 for c in self._open if c.account.id == account_id)
 
     def add(self, conn: Connection) -> None:
         self._open.add(conn)
@@ -123,6 +141,9 @@ async def dashboard_socket(ws: WebSocket, runtime: Runtime) -> None:
     connections = dashboard.connections
     if connections.open >= MAX_CONNECTIONS:
         await refuse(ws, "too many dashboards open")
+        return
+    if connections.of(account.id) >= MAX_PER_ACCOUNT:
+        await refuse(ws, f"too many dashboards open for {account.login}")
         return
     secret = bearer(ws) or ws.cookies.get(COOKIE) or ""
     try:
@@ -200,6 +221,8 @@ async def relay(
 async def _browser_to_viser(
     ws: WebSocket, upstream: ClientConnection, conn: Connection
 ) -> tuple[int, str]:
+    loop = asyncio.get_running_loop()
+    conn.refilled = loop.time()
     while True:
         msg = await ws.receive()
         if msg["type"] == "websocket.disconnect":
@@ -208,6 +231,8 @@ async def _browser_to_viser(
         if data is None:
             data = msg.get("text")
         why = admit(data)
+        if why is None and not conn.spend(loop.time()):
+            why = f"more than {FRAME_RATE:.0f} frames/s"
         if why is None:
             await upstream.send(data)  # type: ignore[arg-type]
             continue

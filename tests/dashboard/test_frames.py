@@ -76,3 +76,16 @@ def test_anything_else_is_refused(frame: bytes, why: str) -> None:
 def test_text_frames_and_nothing_are_refused() -> None:
     assert admit(msgspec.json.encode(CAMERA).decode()) == "not a binary frame"
     assert admit(None) == "not a binary frame"
+
+
+def test_a_browser_sends_no_faster_than_a_browser_does() -> None:
+    from sessions.store import AccountRecord
+    from webui.proxy import FRAME_BURST, FRAME_RATE, Connection
+
+    account = AccountRecord.model_construct(id=1, login="x", role="trainer", disabled=False)
+    conn = Connection(account, refilled=0.0)
+    passed = sum(conn.spend(0.0) for _ in range(int(FRAME_BURST) + 50))
+    assert passed == FRAME_BURST  # a burst, then nothing
+    passed = sum(conn.spend(0.5) for _ in range(int(FRAME_BURST)))
+    assert passed == FRAME_RATE * 0.5  # refilled at the rate
+    assert conn.spend(0.5 + 1 / FRAME_RATE)  # one more after one frame's time

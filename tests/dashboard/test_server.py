@@ -14,6 +14,7 @@ update handler keeps an element's callbacks even for a connection with the secre
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import os
 import re
@@ -184,6 +185,19 @@ def test_trainers_and_viewers_get_their_own_dashboards(app_client: TestClient) -
                 time.sleep(0.05)
             assert len(views) == 1
             assert views[0].who.role == ACCOUNTS[login][0]
+
+
+def test_one_account_opens_a_bounded_number_of_dashboards(app_client: TestClient) -> None:
+    from webui.proxy import MAX_PER_ACCOUNT
+
+    with contextlib.ExitStack() as open_ones:
+        for _ in range(MAX_PER_ACCOUNT):
+            ws = open_ones.enter_context(proxied(app_client, "coach"))
+            ws.receive_bytes()
+        headers = {**logged_in(app_client, "coach"), "origin": ORIGIN}
+        assert refused(app_client, headers, [SUBPROTOCOL])
+        headers = {**logged_in(app_client, "guest"), "origin": ORIGIN}
+        assert not refused(app_client, headers, [SUBPROTOCOL])  # another account: fine
 
 
 def test_the_shared_gui_holds_nothing_a_browser_could_change(app_client: TestClient) -> None:
