@@ -7,12 +7,15 @@ import html
 import math
 
 import numpy as np
+import pytest
 
 from sessions.config import parse_session_config
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
 from webui.charts import (
     LIVE,
+    SAMPLE_RATE,
+    WINDOW_S,
     LiveWindow,
     lead_finite,
     plottable,
@@ -35,12 +38,16 @@ def ring_rows(t: np.ndarray, session: int = 1) -> np.ndarray:
 
 
 def test_the_live_window_keeps_the_last_ten_seconds_and_at_most_500_points() -> None:
-    win = LiveWindow(seconds=10.0, max_points=500)
-    for start in range(0, 30, 2):  # 30 s at 1 kHz, in 2 s batches
-        win.extend(ring_rows(np.arange(start, start + 2, 0.001)))
+    assert WINDOW_S == 10.0  # the documented window
+    win = LiveWindow()  # the dashboard's: WINDOW_S of a SAMPLE_RATE subscription
+    dt = 1.0 / SAMPLE_RATE
+    for start in range(0, 30, 2):  # 30 s at the live window's rate, in 2 s batches
+        win.extend(ring_rows(np.arange(start, start + 2, dt)))
     t = win.rows[:, LIVE["t"]]
     assert t[-1] == win.last[LIVE["t"]]
-    assert t[-1] - t[0] <= 10.0 + 1e-9
+    # the whole window, not a part of it: the last WINDOW_S seconds, every sample of them
+    assert t[-1] - t[0] == pytest.approx(WINDOW_S, abs=dt + 1e-9)
+    assert len(t) == pytest.approx(WINDOW_S * SAMPLE_RATE, abs=1)
     t_chart, w_chart = win.series("t", "w")
     assert len(t_chart) <= 500
     assert t_chart[-1] == t[-1]  # the newest sample is always drawn
