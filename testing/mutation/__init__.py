@@ -1,0 +1,53 @@
+"""Mutation testing of the safety- and security-critical modules (``make mutation``).
+
+MODULES is the one definition of what is mutated and which tests may kill it: a name, the
+source files (globs relative to the repository root) and the pytest selection that runs for
+every mutant of those files. ``python -m testing.mutation`` runs mutmut over them (see
+docs/testing.md); :mod:`testing.mutation.plugin` feeds this table to mutmut.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    sources: tuple[str, ...]  # fnmatch globs, relative to the repository root
+    tests: tuple[str, ...]  # pytest node-id prefixes (files, folders, file::test)
+    exclude: tuple[str, ...] = ()  # node ids containing one of these never run for a mutant
+
+
+MODULES: tuple[Target, ...] = (
+    # who is asking and with which role: logins, limits, Origins; the role dependencies
+    Target(
+        "auth",
+        ("server/security.py", "server/api/deps.py", "server/api/auth.py"),
+        ("tests/api/test_auth.py", "tests/api/test_login_checks.py"),
+    ),
+    # the worker's supervision: e-stop, limits, passivity, the controlled stop
+    Target(
+        "supervisor",
+        ("sessions/worker/supervisor.py",),
+        ("tests/worker/test_safety.py", "tests/worker/test_session.py"),
+    ),
+    # the machine backends' fault handling (the simulator's and the base's checks)
+    Target(
+        "machine",
+        ("sessions/machine/base.py", "sessions/machine/sim.py"),
+        ("tests/machine/test_sim.py", "tests/machine/test_odrive_faults.py"),
+    ),
+    # nothing recorded is lost: the store's recorder (SQLite; PostgreSQL adds cost, not kills)
+    Target("recorder", ("sessions/store/recorder.py",), ("tests/store/",), exclude=("postgresql",)),
+)
+THRESHOLD = 85.0  # % of the non-equivalent mutants killed (or timed out), per module
+
+# Survivors that no test can kill, with the reason (equivalent.toml beside this file):
+# (mutmut's function name, the mutated line(s)) -> why.
+EQUIVALENT: dict[tuple[str, str], str] = {
+    (e["function"], e["mutant"]): e["reason"]
+    for e in tomllib.loads((Path(__file__).parent / "equivalent.toml").read_text())["equivalent"]
+}
