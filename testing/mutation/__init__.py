@@ -32,7 +32,12 @@ MODULES: tuple[Target, ...] = (
     Target(
         "supervisor",
         ("sessions/worker/supervisor.py",),
-        ("tests/worker/test_safety.py", "tests/worker/test_session.py"),
+        (
+            "tests/worker/test_stop_ramp.py",
+            "tests/worker/test_safety.py",
+            "tests/worker/test_session.py",
+            "tests/worker/test_nonfinite.py",
+        ),
     ),
     # the machine backends' fault handling (the simulator's and the base's checks)
     Target(
