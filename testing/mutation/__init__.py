@@ -26,7 +26,7 @@ MODULES: tuple[Target, ...] = (
     Target(
         "auth",
         ("server/security.py", "server/api/deps.py", "server/api/auth.py"),
-        ("tests/api/test_auth.py", "tests/api/test_login_checks.py"),
+        ("tests/api/test_login_checks.py",),
     ),
     # the worker's supervision: e-stop, limits, passivity, the controlled stop
     Target(
@@ -35,18 +35,42 @@ MODULES: tuple[Target, ...] = (
         (
             "tests/worker/test_stop_ramp.py",
             "tests/worker/test_safety.py",
-            "tests/worker/test_session.py",
-            "tests/worker/test_nonfinite.py",
+            "tests/worker/test_session.py::test_the_end_ramps_torque_out_and_never_drives",
+            "tests/worker/test_session.py::test_operator_stop_ends_the_session_early",
         ),
     ),
-    # the machine backends' fault handling (the simulator's and the base's checks)
+    # the machine backends' fault handling: the lifecycle and its latched FAULT, the
+    # simulator's faults, the ODrive's pre-arm checks and fault registers
     Target(
         "machine",
-        ("sessions/machine/base.py", "sessions/machine/sim.py"),
-        ("tests/machine/test_sim.py", "tests/machine/test_odrive_faults.py"),
+        (
+            "sessions/machine/base.py",
+            "sessions/machine/sim.py",
+            "sessions/machine/odrive/checks.py",
+        ),
+        (
+            "tests/machine/test_sim.py",
+            "tests/machine/test_odrive_faults.py",
+            "tests/machine/test_odrive_firmware.py",
+        ),
     ),
     # nothing recorded is lost: the store's recorder (SQLite; PostgreSQL adds cost, not kills)
-    Target("recorder", ("sessions/store/recorder.py",), ("tests/store/",), exclude=("postgresql",)),
+    Target(
+        "recorder",
+        ("sessions/store/recorder.py",),
+        (
+            "tests/store/test_recorder.py",
+            "tests/store/test_telemetry.py::test_chunks",
+            "tests/store/test_telemetry.py::test_open_chunk",
+            "tests/store/test_telemetry.py::test_live_summary",
+            "tests/store/test_telemetry.py::test_background",
+            "tests/store/test_telemetry.py::test_recorder",
+            "tests/store/test_telemetry.py::test_bad_rows",
+            "tests/store/test_telemetry.py::test_non_finite",
+            "tests/store/test_crash.py",
+        ),
+        exclude=("postgresql",),
+    ),
 )
 THRESHOLD = 85.0  # % of the non-equivalent mutants killed (or timed out), per module
 

@@ -82,6 +82,11 @@ def request(
     return Request(scope)
 
 
+def run(coro):  # type: ignore[no-untyped-def]
+    """Run a coroutine, bounded: a check that deadlocks fails here instead of hanging."""
+    return asyncio.run(asyncio.wait_for(coro, 10.0))
+
+
 def lower(headers: dict[str, str] | None) -> dict[str, str]:
     """Header names compared as HTTP does: case-insensitively."""
     return {k.lower(): v for k, v in (headers or {}).items()}
@@ -321,14 +326,14 @@ def test_identify_prefers_the_bearer_token(store: Store) -> None:
         (request(), None, "none"),
     ]
     for req, want, how in cases:
-        for found, via in (identify(req, store), asyncio.run(identify_async(req, store))):
+        for found, via in (identify(req, store), run(identify_async(req, store))):
             assert (found.id if found else None, via) == (want, how)
 
 
 # -- the role dependencies --------------------------------------------------------------------
 def current(req: Request, store: Store, origins: list[str] | None = None) -> AccountRecord:
     settings = Settings(allowed_origins=origins or [])
-    return asyncio.run(deps.current_account(req, store, settings))
+    return run(deps.current_account(req, store, settings))
 
 
 def refused(req: Request, store: Store, origins: list[str] | None = None) -> HTTPException:
@@ -388,10 +393,10 @@ def test_roles_nest(store: Store, need: str) -> None:
     for role in ("viewer", "trainer", "admin"):
         who = account(store, role)
         if rank[role] >= rank[need]:
-            assert asyncio.run(check(who)) is who
+            assert run(check(who)) is who
         else:
             with pytest.raises(HTTPException) as e:
-                asyncio.run(check(who))
+                run(check(who))
             assert e.value.status_code == 403
             assert e.value.detail == f"needs the {need} role (you are {role})"
 
@@ -409,7 +414,7 @@ def log_in(
     response = Response()
     req = request("POST", app=login_app(secure))
     body = LoginIn(login=login, password=password)
-    return asyncio.run(_authenticate(req, response, body, store, lim)), response
+    return run(_authenticate(req, response, body, store, lim)), response
 
 
 def test_a_login_sets_the_device_cookie(store: Store) -> None:
@@ -458,16 +463,16 @@ def test_too_many_waiting_logins_are_refused_at_once(store: Store) -> None:
     body = LoginIn(login="viewer", password=f"{PASSWORD} viewer")
     lim.hashing_waiting = HASHING_QUEUE
     with pytest.raises(HTTPException) as e:
-        asyncio.run(_check_password(store, lim, body))
+        run(_check_password(store, lim, body))
     assert e.value.status_code == 503 and e.value.detail == "too many logins at once: try again"
     assert lower(e.value.headers) == {"retry-after": "1"}
     lim.hashing_waiting = HASHING_QUEUE - 1  # one place left: it waits, then hashes
-    assert asyncio.run(_check_password(store, lim, body)).login == "viewer"
+    assert run(_check_password(store, lim, body)).login == "viewer"
     assert lim.hashing_waiting == HASHING_QUEUE - 1
     assert lim.hashing._value == HASHING_AT_ONCE  # the slot was given back
     wrong = LoginLimiter(2, 60.0, KEY)
     nobody = LoginIn(login="viewer", password="no")
-    assert asyncio.run(_check_password(store, wrong, nobody)) is None
+    assert run(_check_password(store, wrong, nobody)) is None
     assert wrong.hashing_waiting == 0 and wrong.hashing._value == HASHING_AT_ONCE
 
 
@@ -487,6 +492,6 @@ def test_password_checks_run_a_few_at_a_time(store: Store) -> None:
         watcher.cancel()
         return found
 
-    found = asyncio.run(burst())
+    found = run(burst())
     assert all(f is not None and f.login == "viewer" for f in found)
     assert max(seen) == HASHING_AT_ONCE  # never more than that at once, and that many used
