@@ -17,7 +17,7 @@ from pathlib import Path
 class Target:
     name: str
     sources: tuple[str, ...]  # fnmatch globs, relative to the repository root
-    tests: tuple[str, ...]  # pytest node-id prefixes (files, folders, file::test)
+    tests: tuple[str, ...]  # pytest node ids (folders, files, file::test): whole names
     exclude: tuple[str, ...] = ()  # node ids containing one of these never run for a mutant
 
 
@@ -60,13 +60,14 @@ MODULES: tuple[Target, ...] = (
         ("sessions/store/recorder.py",),
         (
             "tests/store/test_recorder.py",
-            "tests/store/test_telemetry.py::test_chunks",
-            "tests/store/test_telemetry.py::test_open_chunk",
-            "tests/store/test_telemetry.py::test_live_summary",
-            "tests/store/test_telemetry.py::test_background",
-            "tests/store/test_telemetry.py::test_recorder",
-            "tests/store/test_telemetry.py::test_bad_rows",
-            "tests/store/test_telemetry.py::test_non_finite",
+            "tests/store/test_telemetry.py::test_chunks_hold_at_most_one_second_and_read_back_exactly",
+            "tests/store/test_telemetry.py::test_open_chunk_is_rewritten_until_full",
+            "tests/store/test_telemetry.py::test_live_summary_follows_the_stored_data",
+            "tests/store/test_telemetry.py::test_background_thread_commits_while_feeding",
+            "tests/store/test_telemetry.py::test_recorder_resumes_after_stored_data",
+            "tests/store/test_telemetry.py::test_recorder_stops_when_the_session_ended_elsewhere",
+            "tests/store/test_telemetry.py::test_bad_rows_are_refused_and_nothing_is_stored",
+            "tests/store/test_telemetry.py::test_non_finite_channels_are_kept",
             "tests/store/test_crash.py",
         ),
         exclude=("postgresql",),

@@ -13,9 +13,10 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import hmac
+import sqlite3
 import time
 from collections.abc import Iterator
-from datetime import timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
@@ -24,7 +25,7 @@ from starlette.requests import Request
 
 from server import security
 from server.api import deps
-from server.api.auth import HASHING_QUEUE, _authenticate, _check_password
+from server.api.auth import HASHING_QUEUE, _authenticate, _check_password, _issue
 from server.api.schemas import LoginIn
 from server.security import (
     COOKIE,
@@ -45,6 +46,7 @@ from server.security import (
 )
 from server.settings import Settings
 from sessions.store import AccountRecord, Store, open_store
+from sessions.store.tokens import digest
 
 HOST = "127.0.0.1:8000"
 OWN = f"http://{HOST}"
@@ -495,3 +497,18 @@ def test_password_checks_run_a_few_at_a_time(store: Store) -> None:
     found = run(burst())
     assert all(f is not None and f.login == "viewer" for f in found)
     assert max(seen) == HASHING_AT_ONCE  # never more than that at once, and that many used
+
+
+def test_a_new_login_forgets_the_dead_ones(store: Store) -> None:
+    viewer = account(store, "viewer")
+    old, _ = store.tokens.issue(viewer.id, "cookie", timedelta(hours=1))
+    store.tokens.revoke(old)
+    before = datetime.now(UTC)
+    secret, record = _issue(store, viewer.id, "bearer", timedelta(hours=2))
+    assert (record.account_id, record.kind) == (viewer.id, "bearer")
+    assert timedelta(hours=2) <= record.expires_at - before <= timedelta(hours=2, seconds=30)
+    found = store.tokens.resolve(secret)
+    assert found is not None and found.id == viewer.id
+    with sqlite3.connect(store.url.removeprefix("sqlite:///")) as con:
+        digests = {d for (d,) in con.execute("select digest from auth_tokens")}
+    assert digest(old) not in digests and digest(secret) in digests  # the revoked one is gone
