@@ -47,6 +47,7 @@ from server.security import (
 from server.settings import Settings
 from sessions.store import AccountRecord, Store, open_store
 from sessions.store.tokens import digest
+from testing.store import FAST_HASHER
 
 HOST = "127.0.0.1:8000"
 OWN = f"http://{HOST}"
@@ -97,7 +98,7 @@ def lower(headers: dict[str, str] | None) -> dict[str, str]:
 @pytest.fixture(scope="module")
 def store(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Store]:
     path = tmp_path_factory.mktemp("checks") / "ergoseek.sqlite"
-    with open_store(f"sqlite:///{path}") as s:
+    with open_store(f"sqlite:///{path}", password_hasher=FAST_HASHER) as s:
         for role in ("viewer", "trainer", "admin"):
             s.accounts.create(role, f"{PASSWORD} {role}", role)
         yield s
@@ -478,7 +479,10 @@ def test_too_many_waiting_logins_are_refused_at_once(store: Store) -> None:
     assert wrong.hashing_waiting == 0 and wrong.hashing._value == HASHING_AT_ONCE
 
 
-def test_password_checks_run_a_few_at_a_time(store: Store) -> None:
+def test_password_checks_run_a_few_at_a_time(tmp_path: Path) -> None:
+    """With the server's own hasher (argon2, 64 MiB, ~0.1 s a check), six at once."""
+    store = open_store(f"sqlite:///{tmp_path / 'slow.sqlite'}")
+    store.accounts.create("viewer", f"{PASSWORD} viewer", "viewer")
     lim = LoginLimiter(50, 60.0, KEY)
     body = LoginIn(login="viewer", password=f"{PASSWORD} viewer")
     seen: list[int] = []
@@ -494,7 +498,10 @@ def test_password_checks_run_a_few_at_a_time(store: Store) -> None:
         watcher.cancel()
         return found
 
-    found = run(burst())
+    try:
+        found = run(burst())
+    finally:
+        store.close()
     assert all(f is not None and f.login == "viewer" for f in found)
     assert max(seen) == HASHING_AT_ONCE  # never more than that at once, and that many used
 
