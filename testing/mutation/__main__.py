@@ -46,12 +46,15 @@ def sync(work: Path) -> None:
 
 def write_config(work: Path, targets: list[Target], per_test_timeout: int) -> None:
     tests = list(dict.fromkeys(t for target in targets for t in target.tests))
+    # excluded tests never run at all (mutmut's own passes run the whole selection too)
+    excluded = sorted({x for target in targets for x in target.exclude})
+    deselect = ["-k", " and ".join(f"not {x}" for x in excluded)] if excluded else []
     cfg = {
         "source_paths": list(PACKAGES),
         "also_copy": ["testing"],
         "only_mutate": [g for target in targets for g in target.sources],
         "pytest_add_cli_args_test_selection": tests,
-        "pytest_add_cli_args": [*PYTEST_ARGS, "--timeout", str(per_test_timeout)],
+        "pytest_add_cli_args": [*PYTEST_ARGS, *deselect, "--timeout", str(per_test_timeout)],
         # a mutant's wall limit: (its tests' call time + constant) * multiplier, in seconds
         "timeout_constant": 20.0,
         "timeout_multiplier": 3.0,
