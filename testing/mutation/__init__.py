@@ -18,7 +18,7 @@ class Target:
     name: str
     sources: tuple[str, ...]  # fnmatch globs, relative to the repository root
     tests: tuple[str, ...]  # pytest node ids (folders, files, file::test): whole names
-    exclude: tuple[str, ...] = ()  # node ids containing one of these never run for a mutant
+    exclude: tuple[str, ...] = ()  # tests whose names hold one of these never run (-k)
 
 
 MODULES: tuple[Target, ...] = (
@@ -54,7 +54,8 @@ MODULES: tuple[Target, ...] = (
             "tests/machine/test_odrive_firmware.py",
         ),
     ),
-    # nothing recorded is lost: the store's recorder (SQLite; PostgreSQL adds cost, not kills)
+    # nothing recorded is lost: the store's recorder (SQLite; PostgreSQL adds cost, not kills;
+    # test_crash.py's SIGKILL of a writer process flakes at the load of a mutation run)
     Target(
         "recorder",
         ("sessions/store/recorder.py",),
@@ -68,7 +69,6 @@ MODULES: tuple[Target, ...] = (
             "tests/store/test_telemetry.py::test_recorder_stops_when_the_session_ended_elsewhere",
             "tests/store/test_telemetry.py::test_bad_rows_are_refused_and_nothing_is_stored",
             "tests/store/test_telemetry.py::test_non_finite_channels_are_kept",
-            "tests/store/test_crash.py",
         ),
         exclude=("postgresql",),
     ),
