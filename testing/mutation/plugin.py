@@ -20,6 +20,8 @@ import json
 import os
 import shutil
 import signal
+import sys
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 from pathlib import Path
 
@@ -89,6 +91,20 @@ def _on_timeout(signum: int, frame: object) -> None:
     os._exit(36)  # mutmut: "timeout"
 
 
+def _fresh_pools() -> None:
+    """mutmut forks each mutant's pytest from a process that already ran the tests: a
+    module-level thread pool there (``server.security._AUTH_POOL``) believes its threads are
+    alive in the fork, where they are not, and work submitted to it would wait forever.
+    Give each such pool of our packages a new executor with the same settings."""
+    for name, module in list(sys.modules.items()):
+        if name.split(".")[0] not in ("server", "sessions", "webui"):
+            continue
+        for attr, value in list(vars(module).items()):
+            if isinstance(value, ThreadPoolExecutor):
+                fresh = ThreadPoolExecutor(value._max_workers, value._thread_name_prefix)
+                setattr(module, attr, fresh)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_configure(config: pytest.Config) -> None:
     if _mutant() == "stats":
@@ -101,6 +117,7 @@ def pytest_configure(config: pytest.Config) -> None:
         return
     if _mutant() in PHASES:
         return
+    _fresh_pools()
     signal.signal(signal.SIGXCPU, _on_timeout)
     base = Path(os.environ.get("ERGOSEEK_MUTATION_TMP", "/tmp")) / f"mutant-{os.getpid()}"
     config.option.basetemp = str(base)
