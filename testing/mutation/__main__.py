@@ -27,6 +27,7 @@ DEFAULT_WORK = ROOT / "build" / "mutation"
 PACKAGES = ("server", "sessions", "webui")  # copied into mutants/ (imported by the tests)
 COPY = (*PACKAGES, "tests", "testing", "pyproject.toml")
 DETECTED = {"killed", "timeout", "caught by type check", "segfault"}  # segfault: -9/-11
+PENDING = "not checked"  # mutmut's status of a mutant not run yet
 PYTEST_ARGS = ["-p", "testing.mutation.plugin", "-p", "no:cacheprovider", "-m", "not docker"]
 
 
@@ -101,10 +102,11 @@ def score(work: Path, target: Target, lines: list[str]) -> bool:
     """Print the module's line, append its survivors to ``lines``; True if it passes."""
     status = results(work, target)
     counts = Counter(status.values())
-    alive = [n for n, s in status.items() if s not in DETECTED and s != "skipped"]
+    unseen = ("skipped", PENDING)  # a run stopped early scores what it checked
+    alive = [n for n, s in status.items() if s not in DETECTED and s not in unseen]
     survivors = diffs(work, alive)
     equivalent = {n: EQUIVALENT[key(n, d)] for n, d in survivors.items() if key(n, d) in EQUIVALENT}
-    tested = len(status) - counts["skipped"] - len(equivalent)
+    tested = len(status) - counts["skipped"] - counts[PENDING] - len(equivalent)
     detected = sum(counts[s] for s in DETECTED)
     pct = 100.0 * detected / tested if tested else 0.0
     rest = ", ".join(f"{n} {s}" for s, n in sorted(counts.items()) if s not in DETECTED)
