@@ -372,3 +372,16 @@ def test_an_open_recorder_never_keeps_a_process_alive(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     with open_store(url) as st:
         assert st.telemetry.span(int(done.stdout)).samples == 200
+
+
+def test_rows_of_numeric_strings_are_stored_as_numbers(store: Store) -> None:
+    """A row read from a text file (a batch import) holds strings: stored as numbers."""
+    sid = running(store)
+    rec = store.recorder(sid, background=False)
+    rows = telemetry(0.003)
+    for row in rows:
+        rec.add_row(tuple(repr(float(x)) for x in row))
+    rec.close()
+    got = store.telemetry.load(sid)
+    np.testing.assert_array_equal(got.column("t"), rows[:, 0])
+    np.testing.assert_allclose(got.column("w"), rows[:, INDEX["w"]], rtol=1e-6)  # float32
