@@ -212,6 +212,32 @@ def test_stale_keys_are_swept_first(monkeypatch: pytest.MonkeyPatch) -> None:
     assert sorted(lim._failures) == ["addr+login:10.0.3.1:x", "addr:10.0.3.1"]
 
 
+def test_memory_pressure_forgets_the_oldest_key_first_and_keeps_recent_locks(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(security, "MAX_TRACKED", 4)
+    lim = LoginLimiter(1, 60.0, KEY)
+    a = request(client="10.0.4.1")
+    lim.failed(lim.keys(request(client="10.0.4.2"), "x"))  # the oldest two keys
+    lim.failed(lim.keys(request(client="10.0.4.3"), "y"))
+    lim.failed(lim.keys(a, "alice"))  # alice is locked at A
+    lim.failed(lim.keys(request(client="10.0.4.4"), "z"))  # over the bound: a sweep
+    assert lim.retry_after(lim.keys(a, "alice")) > 0.0  # a recent lock is kept
+    assert lim.retry_after(lim.keys(request(client="10.0.4.2"), "x")) == 0.0  # the oldest went
+
+
+def test_a_lock_on_the_name_outlives_its_address_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(security, "MAX_TRACKED", 4)
+    lim = LoginLimiter(1, 60.0, KEY)
+    a, b = request(client="10.0.5.1"), request(client="10.0.5.2")
+    lim.failed(lim.keys(a, "alice"))  # addr:A, then addr+login:A:alice
+    lim.failed(lim.keys(b, "x"))
+    lim.failed(lim.keys(b, "y"))  # 5 keys: the next failure sweeps one, addr:A
+    lim.failed(lim.keys(request(client="10.0.5.3"), "z"))
+    assert "addr:10.0.5.1" not in lim._failures
+    assert lim.retry_after(lim.keys(a, "alice")) > 0.0  # still locked by its own key
+
+
 # -- device cookies ---------------------------------------------------------------------------
 def sign(login: str, nonce: str, key: bytes = KEY) -> str:
     """The device cookie's signature, computed independently (HMAC-SHA256, 128 bits)."""
