@@ -222,6 +222,7 @@ def test_memory_pressure_forgets_the_oldest_key_first_and_keeps_recent_locks(
     lim.failed(lim.keys(request(client="10.0.4.3"), "y"))
     lim.failed(lim.keys(a, "alice"))  # alice is locked at A
     lim.failed(lim.keys(request(client="10.0.4.4"), "z"))  # over the bound: a sweep
+    assert len(lim._failures) == 4 + 2  # down to the bound (not below), then z's two keys
     assert lim.retry_after(lim.keys(a, "alice")) > 0.0  # a recent lock is kept
     assert lim.retry_after(lim.keys(request(client="10.0.4.2"), "x")) == 0.0  # the oldest went
 
