@@ -1,0 +1,165 @@
+"""The track phase: following an optimum that moves, after the search has converged.
+
+A person's optimum drifts during a session (fatigue lowers the maximal shortening velocity;
+the optimal cadence of cycling rises with effort). Once a numerical seeker has converged on
+θ, the tracker keeps θ there at a bounded cost and moves it when the power says so:
+
+- a slow dither on the candidate, γ = θ + A sin(ω t) (period ``dither_period``, ramped in
+  over one period and clipped to the bracket): it spreads w around θ so that the local slope
+  of p(w) can be seen. A is as small as the noise allows: the amplitude at which the slope
+  over ``track_memory`` pins θ down to PRECISION (2 %), from the fit's own residual noise,
+  between 0.25 % of θ and ``dither``·θ (5 %), and never more than loses DITHER_COST (0.3 %)
+  of the power at its extremes on the measured curvature (½|p''|A² ≤ 0.003 p). On average
+  it costs half that, well within the 1 % the issue allows; on a clean signal it is a few
+  tenths of a per cent of θ;
+- every ``REFIT`` seconds, the local model of :mod:`.regression` over the samples since the
+  track phase began near θ (|w − θ| ≤ 10 %, or three dither amplitudes), weighted by exp(−age/``track_memory``), with the ripple and a drift in time
+  regressed out and the curvature fixed (from the search, else the generic −2p/θ² of a top
+  where ±10 % in w costs 1 % in p): its slope b at θ and standard error σb;
+- a Newton step towards the vertex, θ ← θ − b/p'', shrunk by b²/(b² + 4σb²) (a slope lost
+  in the noise moves nothing) and limited to ``RATE``·θ per second;
+- at a bound, with the slope pointing outward beyond two standard errors: ``at_bound`` (or
+  one expansion step with ``expand``). When θ leaves the bound again the optimum has come
+  inside: the search's result is then recorded as converged there.
+
+Each refit records an :class:`Evaluation` at θ (the fitted power there).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sessions.seekers.base import Evaluation
+from sessions.seekers.regression import Rows, T, W, fit
+
+if TYPE_CHECKING:
+    from sessions.seekers.base import Seeker
+
+REFIT = 1.0  # s between steps
+SMOOTH = 5.0  # s: θ closes this fraction of its gap to the vertex per second, at most
+RATE = 0.01  # the most θ moves, as a fraction of θ per second
+WINDOW = 0.3  # rows within this fraction of θ are used
+MIN_ROWS = 50
+DITHER_COST = 0.003
+PRECISION = 0.02
+MIN_DITHER = 0.0025
+
+
+def smoothstep(x: float) -> float:
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
+
+
+class Tracker:
+    __slots__ = (
+        "owner", "rows", "theta", "curv", "t0", "amp", "omega", "period", "memory",
+        "next_fit", "last_fit", "level", "noise", "amp_now",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        owner: Seeker,
+        theta: float,
+        curvature: float | None,
+        t0: float,
+        rows: Rows,
+        noise: tuple[float, float] | None = None,
+    ) -> None:
+        cfg = owner.cfg
+        self.owner = owner
+        self.rows = rows
+        self.theta = owner.clamp(theta)
+        self.curv = curvature if curvature is not None and curvature < 0.0 else None
+        self.t0 = t0
+        self.amp = cfg.dither
+        self.period = cfg.dither_period
+        self.omega = 2.0 * math.pi / cfg.dither_period
+        self.memory = cfg.track_memory
+        self.next_fit = t0 + REFIT
+        self.last_fit = t0
+        self.level = owner.optimum_power
+        self.noise = noise  # (residual std of a row, its correlation inflation)
+        self.amp_now = self._wanted()
+        owner.optimum = self.theta
+
+    def target(self, t: float) -> float:
+        """The candidate at time t: θ with the dither, inside the bounds."""
+        x = t - self.t0
+        a = self.amplitude() * smoothstep(x / self.period)
+        return self.owner.clamp(self.theta + a * math.sin(self.omega * x))
+
+    def amplitude(self) -> float:
+        return self.amp_now
+
+    def _wanted(self) -> float:
+        """The dither amplitude the noise asks for, within its bounds (module docstring)."""
+        theta = self.theta
+        top = self.amp * theta
+        level = self.level if self.level is not None and self.level > 0.0 else None
+        curv = self.curv
+        if curv is None and level is not None:
+            curv = -2.0 * level / theta**2
+        if curv is not None and level is not None:
+            top = min(top, math.sqrt(2.0 * DITHER_COST * level / -curv))
+        if self.noise is None or curv is None:
+            return top
+        sigma, inflate = self.noise
+        n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
+        want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
+        return min(max(want, MIN_DITHER * theta), max(top, MIN_DITHER * theta))
+
+    def update(self, t: float) -> Evaluation | None:
+        """A step towards the fitted vertex when one is due; the evaluation it records."""
+        if t < self.next_fit:
+            return None
+        self.next_fit = t + REFIT
+        dt_fit, self.last_fit = t - self.last_fit, t
+        theta = self.theta
+        d = self.rows.view(since=t - 3.0 * self.memory)
+        d = d[np.abs(d[:, W] - theta) <= WINDOW * theta]
+        if len(d) < MIN_ROWS:
+            return None
+        level = self.level if self.level is not None and self.level > 0.0 else None
+        level = level or max(float(np.mean(d[:, P])), 1e-9)
+        prior = self.curv if self.curv is not None else -2.0 * level / theta**2
+        wts = np.exp(-(t - d[:, T]) / self.memory)
+        f = fit(d, theta, WINDOW * theta, prior=(prior, 0.5 * -prior), drift=True, weights=wts)
+        if f is None:
+            return None
+        v, se = f.vertex()
+        owner = self.owner
+        step = 0.0
+        if math.isfinite(v) and math.isfinite(se):
+            gap = v - theta
+            step = min(1.0, dt_fit / SMOOTH) * gap * gap * gap / (gap * gap + 4.0 * se * se)
+        limit = RATE * theta * dt_fit
+        new = owner.clamp(theta + min(max(step, -limit), limit))
+        side = None
+        for bound, name, sign in ((owner.hi, "upper", 1.0), (owner.lo, "lower", -1.0)):
+            if abs(new - bound) <= 1e-9 * bound:
+                slope, slope_se = f.slope(bound)
+                if sign * slope > 2.0 * slope_se:
+                    side = name
+        if side is not None and owner.expand(side):
+            side = None
+        was = owner.at_bound
+        owner.at_bound = side
+        if was is not None and side is None and owner.edge(new) is None:
+            owner.converged_at(t, new, f.value(new))  # the optimum came inside
+        self.theta = new
+        power = f.value(new)
+        self.level = power
+        self.noise = (f.sigma, f.inflate)
+        # follow the noise the fit sees, by at most 1.5× a refit (the dither stays smooth)
+        self.amp_now = min(max(self._wanted(), self.amp_now / 1.5), self.amp_now * 1.5)
+        owner.optimum = new
+        owner.optimum_power = power
+        ev = Evaluation(t, new, power, math.sqrt(max(float(f.cov[0, 0]), 0.0)))
+        owner.evaluations.append(ev)
+        return ev
