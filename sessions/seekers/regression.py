@@ -119,8 +119,11 @@ class Fit:
     scale: float
     coef: np.ndarray  # a, b, c (c fixed when the fit was given a curvature)
     cov: np.ndarray  # 3 × 3 (row and column of a fixed c are zero)
+    ripple: tuple[float, float, float, float]  # relative α₁, β₁, α₂, β₂ (zeros if not fitted)
     sigma: float  # residual std of one row
     inflate: float  # the variance inflation for correlated residuals, (1 + r₁)/(1 - r₁)
+    misfit: float  # with ``misfit_test``: the largest |t| of x³, x⁴ (the curve is no parabola)
+    now: tuple[float, float] | None  # with ``moving``: the vertex at the last row, its std err
     n: int
     w_lo: float
     w_hi: float
@@ -134,6 +137,12 @@ class Fit:
         """dp/dw at w and its standard error."""
         x = (w - self.center) / self.scale
         g = np.array([0.0, 1.0, 2.0 * x]) / self.scale
+        return float(g @ self.coef), math.sqrt(max(float(g @ self.cov @ g), 0.0))
+
+    def drop(self, w1: float, w2: float) -> tuple[float, float]:
+        """p(w1) - p(w2) and its standard error."""
+        x1, x2 = (w1 - self.center) / self.scale, (w2 - self.center) / self.scale
+        g = np.array([0.0, x1 - x2, x1 * x1 - x2 * x2])
         return float(g @ self.coef), math.sqrt(max(float(g @ self.cov @ g), 0.0))
 
     @property
@@ -155,6 +164,82 @@ class Fit:
         v = self.center - self.scale * b / (2.0 * c)
         g = np.array([0.0, -self.scale / (2.0 * c), self.scale * b / (2.0 * c * c)])
         return float(v), math.sqrt(max(float(g @ self.cov @ g), 0.0))
+
+
+def _vertex_now(
+    coef: np.ndarray,
+    cov: np.ndarray,
+    center: float,
+    scale: float,
+    j: int,
+    tau: float,
+    c_fixed: float | None = None,
+) -> tuple[float, float]:
+    """The vertex of a + (b + d τ) x + c x² at τ (d the coefficient in column j; c fixed
+    when given, else fitted in column 2)."""
+    b, d = coef[1], coef[j]
+    c = coef[2] if c_fixed is None else c_fixed
+    if not c < 0.0:
+        return math.nan, math.inf
+    bn = b + d * tau
+    v = center - scale * bn / (2.0 * c)
+    if c_fixed is None:
+        idx = [1, 2, j]
+        g = np.array([-scale / (2.0 * c), scale * bn / (2.0 * c * c), -scale * tau / (2.0 * c)])
+    else:
+        idx = [1, j]
+        g = np.array([-scale / (2.0 * c), -scale * tau / (2.0 * c)])
+    sub = cov[np.ix_(idx, idx)]
+    return float(v), math.sqrt(max(float(g @ sub @ g), 0.0))
+
+
+def _t_max(coef: np.ndarray, cov: np.ndarray, i: int, j: int) -> float:
+    se = np.sqrt(np.maximum(np.diag(cov)[i:j], 1e-300))
+    return float(np.max(np.abs(coef[i:j]) / se))
+
+
+def _misfit(
+    rows: np.ndarray,
+    center: float,
+    scale: float,
+    *,
+    drift: bool,
+    weights: np.ndarray | None,
+    ripple: bool,
+) -> float:
+    f = fit(rows, center, scale, drift=drift, weights=weights, ripple=ripple, powers=2)
+    return math.inf if f is None else f.misfit
+
+
+def without_ripple(rows: np.ndarray, ripple: tuple[float, float, float, float]) -> np.ndarray:
+    """The rows with a known (relative) ripple divided out of the power."""
+    if not any(ripple):
+        return rows
+    out = rows.copy()
+    a1, b1, a2, b2 = ripple
+    factor = 1.0 + a1 * rows[:, S1] + b1 * rows[:, C1] + a2 * rows[:, S2] + b2 * rows[:, C2]
+    out[:, P] = rows[:, P] / np.maximum(factor, 0.1)
+    return out
+
+
+def fit_ripple(
+    rows: np.ndarray, cols: list[np.ndarray]
+) -> tuple[float, float, float, float] | None:
+    """The relative ripple α₁, β₁, α₂, β₂ of p ≈ f·(1 + Σ …) with f spanned by ``cols``
+    (two passes, as in :func:`fit`)."""
+    p = rows[:, P]
+    level = np.full(len(rows), max(float(np.mean(p)), 1e-12))
+    k = len(cols)
+    coef = None
+    for _ in range(2):
+        a = np.column_stack([*cols, *(level * rows[:, j] for j in (S1, C1, S2, C2))])
+        solved = _solve(a, p, None, None)
+        if solved is None:
+            return None
+        coef = solved[0]
+        level = np.maximum(a[:, :k] @ coef[:k], 1e-12)
+    assert coef is not None
+    return tuple(float(v) for v in coef[k:])  # type: ignore[return-value]
 
 
 def _solve(
@@ -206,11 +291,21 @@ def fit(
     drift: bool = False,
     weights: np.ndarray | None = None,
     ripple: bool = True,
+    misfit_test: bool = False,
+    powers: int = 0,
+    moving: bool = False,
 ) -> Fit | None:
     """The model above over ``rows``. ``curvature`` (d²p/dw²) fixes c₂ instead of fitting
     it; ``prior`` = (d²p/dw², its standard error) pulls c₂ towards a value the rows cannot
-    pin down by themselves (a ridge, in the rows' own noise units). None when the rows cannot
-    determine the model."""
+    pin down by themselves (a ridge, in the rows' own noise units); ``drift`` adds a level
+    changing in time (fatigue), ``moving`` also a slope changing in time (x·τ: the top
+    moving), and ``Fit.now`` is then the vertex at the last row's time; ``misfit_test`` also
+    fits x³ and x⁴ and reports how significant they are (a lack-of-fit test: the parabola
+    is no good this wide), the parabola's coefficients still from the quadratic alone. None
+    when the rows cannot determine the model."""
+    misfit = 0.0
+    if misfit_test:
+        misfit = _misfit(rows, center, scale, drift=drift, weights=weights, ripple=ripple)
     n = len(rows)
     w = rows[:, W]
     p = rows[:, P]
@@ -218,12 +313,18 @@ def fit(
     c_fixed = None if curvature is None else 0.5 * curvature * scale * scale
     y = p if c_fixed is None else p - c_fixed * x * x
     base = [np.ones(n), x] if c_fixed is not None else [np.ones(n), x, x * x]
+    base += [x**k for k in range(3, 3 + powers)]
     extra: list[np.ndarray] = []
-    if drift:
+    tau_end = 0.0
+    if drift or moving:
         tt = rows[:, T]
         span = float(tt[-1] - tt[0]) if n else 0.0
         if span > 0.0:
-            extra.append((tt - tt.mean()) / span)
+            tau = (tt - tt.mean()) / span
+            tau_end = float(tau[-1])
+            extra.append(tau)
+            if moving:
+                extra.append(x * tau)  # the slope changes in time: the top moves
     k = len(base) + len(extra) + (4 if ripple else 0)
     if n < k + 3 or float(np.ptp(x)) <= 0.0:
         return None
@@ -258,7 +359,7 @@ def fit(
     coef, inv, meat = solved
     cov_full = inv @ meat @ inv * s2 * inflate  # the sandwich: robust to the weights
     cov = np.zeros((3, 3))
-    nb = len(base)
+    nb = len(base) - powers
     cov[:nb, :nb] = cov_full[:nb, :nb]
     coef3 = np.zeros(3)
     coef3[:nb] = coef[:nb]
@@ -266,13 +367,21 @@ def fit(
         coef3[2] = c_fixed
     if not np.all(np.isfinite(coef3)) or not np.all(np.isfinite(cov)):
         return None
+    rip = tuple(float(v) for v in coef[len(cols) - 4 :]) if ripple else (0.0, 0.0, 0.0, 0.0)
+    now = None
+    if moving and len(extra) == 2:
+        j = len(base) + len(extra) - 1
+        now = _vertex_now(coef, cov_full, center, scale, j, tau_end, c_fixed)
     return Fit(
         center=center,
         scale=scale,
         coef=coef3,
         cov=cov,
+        ripple=rip,  # type: ignore[arg-type]
         sigma=math.sqrt(max(s2, 0.0)),
         inflate=inflate,
+        misfit=misfit if not powers else _t_max(coef, cov_full, 3, 3 + powers),
+        now=now,
         n=n,
         w_lo=float(w.min()),
         w_hi=float(w.max()),

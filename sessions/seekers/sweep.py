@@ -4,29 +4,33 @@ settled windows.
 A numerical seeker of Appendix A spends ~4 s of a person's effort per candidate (the filter
 settles, then at least a revolution is averaged) and throws away what it saw in between. The
 sweep keeps every sample: the loop's (t, q, p, w) become 20 ms rows (:mod:`.regression`), and
-p is regressed on the *measured* velocity with the stroke ripple (first and second harmonic,
+p is regressed on where it was produced with the stroke ripple (first and second harmonic,
 multiplicative) regressed out, so the candidate can move all the time.
 
-1. **Lead-in.** From rest the trajectory filter brings wd to γ2, exactly as for a candidate.
-   Rows are kept from the end of the start delay on.
-2. **Legs.** The candidate γ moves along a direction at ``sweep_rate``·w per second (faster, up
-   to 4×, where the power is clearly below the best seen: far from the top), never more than
-   the filter's ramp lag ahead of wd, never outside [lo, hi]. Every 0.2 s a line through the
-   last second or revolution of rows gives the local slope: a slope uphill along the leg by
-   2.5 standard errors marks the leg as *climbing*; downhill by 2.5 standard errors after a
-   climb means the top is behind: it is bracketed. Downhill without a climb (the lead-in
-   overshot, or the guess was past the top): the leg reverses. At a bound while climbing the
-   bound is expanded (``expand``) or the search ends there; a flat reach of the bound reverses.
-3. **The top.** A quadratic through the rows within ±30 % of the best point (the skew of a
-   Hill curve moves its vertex by < 0.03 % of the power at that width) gives the vertex v and
-   its standard error σv. Converged once ½|p''|(2σv)² ≤ ``power_tol``·p: the optimum is
-   known to within that fraction of the power; otherwise one more, slower pass across
-   v ± max(10 %, 2σv) (at most three).
-4. **Track.** The candidate goes to v and a :class:`~sessions.seekers.tracker.Tracker`
-   follows it (``track``, the default) with the curvature the sweep measured.
+1. **Lead-in.** From rest the trajectory filter brings wd to γ2, as for any candidate. Rows
+   are kept from the end of the start delay, once the lead-in's acceleration has eased (while
+   the reference accelerates hard, τ̂ = τ − J ė is off by the tracking error's transient).
+2. **Locate.** The candidate moves along a direction at ``sweep_rate``·w per second, up to 4×
+   faster while it climbs a steep flank (a power elasticity d ln p/d ln w above 0.15: far from
+   the top), never more than the filter's ramp lag ahead of wd, never outside [lo, hi]. Every
+   0.2 s a line through the last ~10 % of w travelled (0.5-2 s of rows, the ripple divided
+   out) gives the local slope; a slope counts when it is K_SLOPE standard errors and an
+   elasticity of MIN_ELASTICITY away from zero. Downhill along the leg: the power falls on that
+   side of the top; the leg reverses, unless it has fallen on both sides. The quadratic
+   through the rows within ±30 % of the top may see both sides fall first (by DROP, at
+   K_BRACKET standard errors). At a bound while climbing: one expansion step (``expand``), or
+   the search ends there; reaching a bound counts as that side seen.
+3. **Refine.** Passes across the band where the fitted power is within 1 % of its top,
+   v ± sqrt(0.02 p/|p''|) (3-30 % of v), re-centred on the vertex after each pass: the
+   candidate stays within the 99 % band while the estimate sharpens. Converged once
+   ½|p''|(2σv)² ≤ ``power_tol``·p (the optimum known to within that fraction of the power at
+   two standard errors), or after MAX_REFINE passes on the best estimate.
+4. **Track.** The candidate goes to the vertex and a :class:`~sessions.seekers.tracker.Tracker`
+   follows it (``track``, the default) with the curvature and noise the sweep measured.
 
-An edge is an optimum only if the power does not still rise through it: the slope at the
-bound, from every row near it, must point outward by three standard errors for ``at_bound``.
+An edge is an optimum only if the power does not still rise through it: for ``at_bound`` the
+slope at the bound, from the rows within 10 % of it, must point outward by K_EDGE standard
+errors; otherwise a top at the bound is a converged optimum like any other.
 """
 
 from __future__ import annotations
@@ -37,39 +41,38 @@ import numpy as np
 
 from sessions.config import SeekerConfig
 from sessions.filters import TrajectoryFilter
-from sessions.seekers.base import (
-    DELAY,
-    DONE,
-    MEASURING,
-    SETTLING,
-    Evaluation,
-    Seeker,
-)
-from sessions.seekers.regression import Fit, Rows, T, W, fit
+from sessions.seekers.base import DELAY, DONE, MEASURING, SETTLING, Evaluation, Seeker
+from sessions.seekers.regression import P, T, W, Fit, Rows, fit, fit_ripple, without_ripple
 from sessions.seekers.tracker import Tracker
 
 REFIT = 0.2  # s between decisions
 REPORT = 1.0  # s between the evaluations the sweep records
-TRAIL = 1.0  # s: the shortest trailing window for the local slope
-TRAIL_MAX = 4.0  # s: the longest (one revolution, when slow)
-K_SLOPE = 2.5  # standard errors for "climbing" / "descending"
+TRAIL_SPAN = 0.1  # the trailing line covers this fraction of w travelled …
+TRAIL_MIN, TRAIL_MAX = 0.5, 2.0  # … within these many seconds
+K_SLOPE = 2.5  # standard errors for "climbing" / "falling"
+MIN_ELASTICITY = 0.03  # |d ln p / d ln w| below this is no slope (a model's misfit, not data)
+K_BRACKET = 2.5  # standard errors for "the quadratic sees both sides fall"
+DROP = 0.01  # a side of the top is seen once the power there is this fraction below it
+SIDE_ROWS = 25  # rows (half a second) needed on each side of the vertex
 K_EDGE = 3.0  # standard errors for "the power still rises through the bound"
-TOP = 0.3  # the top fit's half-width, fraction of the velocity
-MAX_REFINE = 3
-MARGIN = 0.1  # rows this far (fraction of v) past the vertex on a side make it seen
-FAST = 4.0
-# rows start once the lead-in's acceleration is below this fraction of w per second: while the
-# reference accelerates hard, τ̂ = τ - J ė is off by the transient of the tracking error
-ACC_GATE = 0.3  # the most a leg speeds up where the power is clearly low
+TOP = 0.3  # the top fit's half-width, fraction of the velocity …
+NARROWEST = 0.08  # … narrowed down to this on a sharp top
+MISFIT = 4.0  # |t| of an x³ or x⁴ term above which the parabola does not fit that wide
+MAX_REFINE = 6
+FAST = 4.0  # the most a leg speeds up on a steep flank
+STEEP = (0.15, 0.45)  # elasticities from which a leg speeds up, and at which it is fastest
+ACC_GATE = 0.3  # rows start once |ad| is below this fraction of w per second
 MIN_ROWS = 12
+UNKNOWN_BAND = 0.15  # a refine pass's half-width before the curvature is known
+RIPPLE_MEMORY = 30.0  # s of rows the ripple is learnt from
 
 
 class SweepSeeker(Seeker):
     kind = "sweep"
     __slots__ = (
-        "filter", "rows", "tracker", "direction", "climbed", "legs", "refines", "next_fit",
-        "next_report", "best_w", "leg_lo", "leg_hi", "lead", "rate", "settle_to",
-        "fit_top", "_report_from",
+        "filter", "rows", "tracker", "stage", "direction", "dropped", "legs", "passes",
+        "next_fit", "next_report", "best_w", "best_p", "span", "lead", "rate", "settle_to",
+        "fit_top", "ripple", "ripple_known", "gate_t", "q_first", "q_last", "_report_from",
     )  # fmt: skip
 
     def __init__(self, cfg: SeekerConfig, dt: float, max_velocity: float) -> None:
@@ -77,19 +80,25 @@ class SweepSeeker(Seeker):
         self.filter = TrajectoryFilter(cfg.filter.order, cfg.filter.pole, dt)
         self.rows = Rows(dt)
         self.tracker: Tracker | None = None
+        self.stage = "lead"
         self.direction = 1.0
-        self.climbed = False
+        self.dropped: set[str] = set()  # the sides on which the power was seen to fall
         self.legs = 0
-        self.refines = 0
+        self.passes = 0
         self.next_fit = cfg.start_delay + REFIT
         self.next_report = cfg.start_delay + REPORT
-        self.best_w = math.nan
-        self.leg_lo = self.leg_hi = math.nan  # the span a refine pass covers
+        self.best_w = math.nan  # coarse: where the trailing lines saw the most power
+        self.best_p = -math.inf
+        self.span = (math.nan, math.nan)  # a refine pass's interval
         # a ramp through n lags of pole p lags by n/p seconds: γ leads wd by that much
         self.lead = cfg.filter.order / cfg.filter.pole
-        self.rate = 0.0
+        self.rate = cfg.sweep_rate
         self.settle_to = math.nan
         self.fit_top: Fit | None = None
+        self.ripple = (0.0, 0.0, 0.0, 0.0)
+        self.ripple_known = False
+        self.gate_t = math.inf  # rows from here on are used for p(w); all of them for the ripple
+        self.q_first = self.q_last = math.nan
         self._report_from = cfg.start_delay
 
     def begin(self, w0: float) -> None:
@@ -110,20 +119,24 @@ class SweepSeeker(Seeker):
     def update(self, t: float, q: float, p: float, e: float) -> Evaluation | None:
         x = self.wd + e if self.velocity_abscissa else self.wd
         ev = None
-        if t >= self.cfg.start_delay and (
-            self.phase != DELAY or abs(self.ad) <= ACC_GATE * max(self.wd, self.lo)
-        ):
+        if t >= self.cfg.start_delay:
             self.rows.add(t, q, p, x, self.wd)
-            phase = self.phase
-            if phase == DONE:
+            if self.q_first != self.q_first:  # nan: the first sample
+                self.q_first = q
+            self.q_last = q
+        if t >= self.cfg.start_delay and (
+            self.stage != "lead" or abs(self.ad) <= ACC_GATE * max(self.wd, self.lo)
+        ):
+            if self.stage == "track":
                 tracker = self.tracker
                 if tracker is not None:
                     ev = tracker.update(t)
                     self.target = tracker.target(t + self.dt)
             else:
-                if phase == DELAY:
-                    self.phase = MEASURING
-                if self.phase == MEASURING:
+                if self.stage == "lead":
+                    self.stage, self.phase = "locate", MEASURING
+                    self.gate_t = t
+                if self.stage != "settle":
                     self._advance_candidate()
                 if t >= self.next_fit:
                     self.next_fit = t + REFIT
@@ -133,99 +146,122 @@ class SweepSeeker(Seeker):
         return ev
 
     def _advance_candidate(self) -> None:
-        """γ moves along the leg, at most the filter's ramp lag ahead of wd."""
-        step = self.direction * self.rate * max(self.wd, self.lo) * self.dt
-        if step == 0.0:
-            return
-        ahead = abs(self.target + step - self.wd)
-        if ahead <= self.lead * self.rate * max(self.wd, self.lo) * 1.2:
-            self.target = self.clamp(self.target + step)
+        """γ moves along the leg, at most the filter's ramp lag ahead of wd; in a refine
+        pass it stops at the span's end (the filter's cascade of lags then brings wd there
+        without overshoot)."""
+        speed = self.rate * max(self.wd, self.lo)
+        step = self.direction * speed * self.dt
+        if abs(self.target + step - self.wd) <= 1.2 * self.lead * speed:
+            target = self.target + step
+            if self.stage == "refine":
+                lo, hi = self.span
+                inside = lo <= self.wd <= hi
+                if inside or (self.wd - hi) * self.direction < 0.0:
+                    target = min(max(target, lo), hi) if inside else target
+            self.target = self.clamp(target)
 
     # -- decisions, every REFIT seconds ----------------------------------------------------
     def _decide(self, t: float) -> Evaluation | None:
         ev = self._report(t)
-        if self.phase == SETTLING:  # on the way to the vertex, then done
+        if self.stage == "settle":  # on the way to the vertex, then done
             if abs(self.wd - self.settle_to) <= max(0.02 * self.settle_to, self.cfg.e2):
                 self._converge(t)
             return ev
-        recent = self.rows.view(t - TRAIL)
-        if len(recent) < MIN_ROWS:
-            self.rate = self.cfg.sweep_rate
-            return ev
-        w_now = float(recent[:, W].mean())
-        top = self._top_fit(self.best_w if math.isfinite(self.best_w) else w_now)
-        self.fit_top = top
-        if self.refines:
-            if self._refine_done():
-                self._finish(t)
-            else:  # slowly across the span, quickly to it
-                inside = self.leg_lo <= self.wd <= self.leg_hi
-                self.rate = self.cfg.sweep_rate * (0.5 if inside else 2.0)
-            return ev
+        centre = self.best_w if math.isfinite(self.best_w) else self.wd
+        self.fit_top = self._top_fit(centre)
+        self._learn_ripple(t)
+        if self.stage == "refine":
+            self._refine_step(t)
+        else:
+            self._locate_step(t)
+        return ev
+
+    def _learn_ripple(self, t: float) -> None:
+        """The stroke ripple, once the rows cover a revolution: a cubic in w times the ripple
+        through the last RIPPLE_MEMORY seconds of rows (lead-in included: a smooth bias in
+        the power does not look like a function of the angle)."""
+        if not self.q_last - self.q_first >= 2.0 * math.pi:
+            return
+        d = self.rows.view(t - RIPPLE_MEMORY)
+        if len(d) < 4 * MIN_ROWS:
+            return
+        w = d[:, W]
+        x = (w - w.mean()) / max(float(w.std()), 1e-6)
+        cols = [np.ones(len(d)), x, x * x, x * x * x]
+        f = fit_ripple(d, cols)
+        if f is not None:
+            self.ripple, self.ripple_known = f, True
+
+    def _locate_step(self, t: float) -> None:
+        if not self.ripple_known:  # until then a slope may be the stroke's, not the curve's
+            return
         trail = self._trailing(t)
-        slope, se = trail.slope(w_now) if trail is not None else (0.0, math.inf)
+        if trail is None:
+            return
+        w_now = 0.5 * (trail.w_lo + trail.w_hi)
+        p_now = trail.value(w_now)
+        slope, se = trail.slope(w_now)
+        se = max(se, MIN_ELASTICITY * abs(p_now) / (K_SLOPE * w_now))  # see MIN_ELASTICITY
+        if p_now > self.best_p:
+            self.best_w, self.best_p = w_now, p_now
         along = slope * self.direction
-        if along > K_SLOPE * se:
-            self.climbed = True
-        # far below the top and climbing: hurry through what cannot be the top
-        p_now = trail.value(w_now) if trail is not None else math.nan
-        peak = top.value(self.best_w) if top is not None else math.nan
-        low = max(0.0, 1.0 - p_now / peak) if peak > 0.0 and math.isfinite(p_now) else 0.0
-        fast = min(1.0, low / 0.1) if along > 0.0 else 0.0
-        self.rate = self.cfg.sweep_rate * (1.0 + (FAST - 1.0) * fast)
-        verdict = self._bracketed(top, w_now)
-        if verdict == "bracketed":
-            self._finish(t)
-        elif (
-            verdict == "behind"
-            or (along < -K_SLOPE * se and not self.climbed)
-            or (along < -K_SLOPE * se and verdict != "ahead")
-        ):
-            self._reverse()
+        elasticity = along * w_now / max(abs(p_now), 1e-12)
+        steep = min(max((elasticity - STEEP[0]) / (STEEP[1] - STEEP[0]), 0.0), 1.0)
+        climbing = along > K_SLOPE * se
+        self.rate = self.cfg.sweep_rate * (1.0 + (FAST - 1.0) * steep * climbing)
+        ahead = "upper" if self.direction > 0 else "lower"
+        if along < -K_SLOPE * se:  # the power falls this way: the top is behind
+            self.dropped.add(ahead)
+            if len(self.dropped) == 2:
+                self._start_refine(t)
+            else:
+                self._reverse()
+        elif self._bracketed(self.fit_top):
+            self._start_refine(t)
         else:
             at_edge = self._at_edge()
             if at_edge is not None:
-                if along > K_SLOPE * se and self.expand(at_edge):
-                    return ev
-                if along > K_SLOPE * se or self.legs >= 1:
-                    self._finish(t)
+                if climbing and self.expand(at_edge):
+                    return
+                self.dropped.add(at_edge)  # nothing to see beyond a bound
+                if len(self.dropped) == 2 or climbing:
+                    self._start_refine(t)
                 else:
                     self._reverse()
-        return ev
-
-    def _bracketed(self, top: Fit | None, w_now: float) -> str:
-        """Where the top is, from the quadratic through the rows near it: "bracketed" (rows
-        on both sides, at least MARGIN beyond it or at a bound), "behind" (passed and
-        receding, the other side unseen), "ahead", or "unknown"."""
-        if top is None or not top.concave(K_SLOPE):
-            return "unknown"
-        v, se = top.vertex()
-        if not math.isfinite(v) or se > 0.25 * v:
-            return "unknown"
-        tol = max(0.01 * self.hi, 0.5 * self.cfg.e2)
-        below = top.w_lo <= v * (1.0 - MARGIN) or top.w_lo <= self.lo + tol
-        above = top.w_hi >= v * (1.0 + MARGIN) or top.w_hi >= self.hi - tol
-        if below and above:
-            return "bracketed"
-        past = (w_now - v) * self.direction
-        if past > MARGIN * v:
-            return "behind"
-        return "ahead" if past < 0.0 else "unknown"
 
     def _trailing(self, t: float) -> Fit | None:
-        """A line through the last second of rows (or revolution, up to 4 s, with ripple)."""
-        w = max(self.wd, self.lo)
-        rev = 2.0 * math.pi / w
-        span = min(max(TRAIL, rev), TRAIL_MAX)
-        d = self.rows.view(t - span)
+        """A line through the rows of the last ~10 % of w travelled, the ripple divided out."""
+        span = min(max(TRAIL_SPAN / max(self.rate, 1e-9), TRAIL_MIN), TRAIL_MAX)
+        d = self.rows.view(max(t - span, self.gate_t))
         if len(d) < MIN_ROWS:
             return None
-        covered = (float(d[-1, T] - d[0, T])) * w
-        ripple = covered >= 0.75 * 2.0 * math.pi  # the ripple can be told apart
         spread = float(np.ptp(d[:, W]))
         if spread <= 1e-6:
             return None
-        return fit(d, float(d[-1, W]), max(spread, 1e-3), curvature=0.0, ripple=ripple)
+        d = without_ripple(d, self.ripple)
+        return fit(d, float(d[-1, W]), max(spread, 1e-3), curvature=0.0, ripple=False)
+
+    def _bracketed(self, top: Fit | None) -> bool:
+        """The quadratic through the rows near the top sees it fall on both sides: at the
+        rows' lowest and highest velocity the fitted power is below the vertex's by DROP of
+        it and by K_BRACKET standard errors (or the rows reach a bound there)."""
+        if top is None or not top.concave(K_BRACKET):
+            return False
+        v, se = top.vertex()
+        if not (top.w_lo < v < top.w_hi) or se > 0.25 * v:
+            return False
+        tol = max(0.01 * self.hi, 0.5 * self.cfg.e2)
+        d = self.rows.view(self.gate_t)
+        near = d[np.abs(d[:, W] - top.center) <= TOP * top.center][:, W]
+        for end, bound, side in ((top.w_lo, self.lo, near < v), (top.w_hi, self.hi, near > v)):
+            if int(side.sum()) < SIDE_ROWS:
+                return False
+            if abs(end - bound) <= tol:
+                continue
+            drop, drop_se = top.drop(v, end)
+            if not (drop >= DROP * top.value(v) and drop >= K_BRACKET * drop_se):
+                return False
+        return True
 
     def _at_edge(self) -> str | None:
         """γ held at a bound and wd arrived there."""
@@ -238,97 +274,114 @@ class SweepSeeker(Seeker):
 
     def _reverse(self) -> None:
         self.direction = -self.direction
-        self.climbed = False
         self.legs += 1
         self.target = self.clamp(self.wd + self.direction * 1e-3)
 
-    def _refine_done(self) -> bool:
-        """A refine pass has crossed its span."""
-        if self.direction > 0:
-            return self.wd >= self.leg_hi or self.target >= self.hi
-        return self.wd <= self.leg_lo or self.target <= self.lo
-
     # -- the top -----------------------------------------------------------------------------
     def _top_fit(self, centre: float) -> Fit | None:
-        """The quadratic through the rows within ±30 % of the top, the centre moved to the
-        vertex (twice at most); keeps ``best_w``, the best estimate of where the top is."""
-        d = self.rows.view()
+        """The quadratic through the rows near the top: within ±30 % of it, narrowed to
+        three 99 %-bands (at least ±8 %) on a sharp top, and while x³ or x⁴ terms are
+        significant beyond MISFIT standard errors (a lack-of-fit test: the curve is no
+        parabola that wide); its centre moved to the vertex."""
+        d = self.rows.view(self.gate_t)
         f = None
-        for _ in range(3):
-            near = d[np.abs(d[:, W] - centre) <= TOP * centre]
+        half = TOP
+        for _ in range(6):
+            near = d[np.abs(d[:, W] - centre) <= half * centre]
             if len(near) < MIN_ROWS:
                 return f
-            g = fit(near, centre, max(TOP * centre, 1e-3))
+            g = fit(near, centre, max(half * centre, 1e-3), misfit_test=half > NARROWEST)
             if g is None:
                 return f
+            if g.misfit > MISFIT and half > NARROWEST:  # not a parabola at this width
+                f, half = g, max(0.7 * half, NARROWEST)
+                continue
             f = g
             v, _ = f.vertex()
-            if math.isfinite(v) and f.concave(K_SLOPE):
-                new = min(max(v, f.w_lo), f.w_hi)
-            else:  # no top in sight: the better end of what was seen
-                new = f.w_hi if f.value(f.w_hi) >= f.value(f.w_lo) else f.w_lo
-            new = min(max(new, self.lo), self.hi)
-            if abs(new - centre) <= 0.02 * centre:
-                centre = new
-                break
-            centre = new
-        self.best_w = centre
+            if not (math.isfinite(v) and f.concave(2.0)):
+                return f
+            new = min(max(v, f.w_lo, self.lo), f.w_hi, self.hi)
+            band = math.sqrt(2.0 * 0.01 * max(f.value(new), 1e-12) / abs(f.curvature[0]))
+            narrow = min(max(3.0 * band / new, NARROWEST), TOP)
+            if abs(new - centre) <= 0.02 * centre and narrow >= 0.9 * half:
+                return f
+            centre, half = new, narrow
         return f
 
-    def _finish(self, t: float) -> None:
-        """The top is bracketed (or a bound reached): locate it, refine if it is not known
-        well enough, else go there."""
-        cfg = self.cfg
-        f = self._top_fit(self.best_w)
-        self.fit_top = f
+    def _estimate(self) -> tuple[float, float, float]:
+        """(v, σv, half-width of the 99 % band) from the top fit; without a significant top,
+        the vertex of a concave fit (else the coarse best point) and ±UNKNOWN_BAND."""
+        f = self.fit_top
+        if f is not None and f.concave(2.0):
+            v, se = f.vertex()
+            if math.isfinite(v) and f.w_lo <= v <= f.w_hi:
+                c2 = abs(f.curvature[0])
+                band = math.sqrt(2.0 * 0.01 * max(f.value(v), 1e-12) / c2)
+                return self.clamp(v), se, min(max(band, 0.03 * v), TOP * v)
+        v = self.clamp(self.best_w if math.isfinite(self.best_w) else self.wd)
+        if f is not None and f.coef[2] < 0.0:  # a maximum, not yet significant: still the best
+            u, _ = f.vertex()
+            if f.w_lo <= u <= f.w_hi:
+                v = self.clamp(u)
+        return v, math.inf, UNKNOWN_BAND * v
+
+    def _start_refine(self, t: float) -> None:
         side = self._edge_verdict()
         if side is not None:
             if self.expand(side):
                 self.direction = 1.0 if side == "upper" else -1.0
-                self.climbed = True
-                self.refines = 0
+                self.dropped.discard(side)
                 return
             self.at_bound = side
-            self._go(self.hi if side == "upper" else self.lo, f)
             self.reason = f"the optimum lies beyond the {side} bound: widen the bracket"
+            self._go(self.hi if side == "upper" else self.lo)
             return
-        v, se = (math.nan, math.inf) if f is None else f.vertex()
-        if f is None or not f.concave() or not math.isfinite(v):
-            if self.refines < MAX_REFINE:  # look again, slowly, around the best point
-                self._refine(self.best_w, 0.2 * self.best_w)
-                return
-            # no maximum in the data: a flat top; the best point seen is as good as any
-            self._go(self.best_w, f)
-            self.reason = "no curvature above the noise: the best point seen"
-            self.converged_at(t, self.target, self.optimum_power)
-            return
-        v = min(max(v, f.w_lo, self.lo), f.w_hi, self.hi)
-        c2, _ = f.curvature
-        level = max(f.value(v), 1e-12)
-        loss = 0.5 * abs(c2) * (2.0 * se) ** 2 / level
-        if loss > cfg.power_tol and self.refines < MAX_REFINE:
-            self._refine(v, max(0.1 * v, 2.0 * se))
-            return
-        self.reason = (
-            "optimum located" if loss <= cfg.power_tol else "refine passes spent: best estimate"
-        )
-        self._go(v, f)
-        self.converged_at(t, v, self.optimum_power)
+        self.stage = "refine"
+        self._next_pass(t)
 
-    def _refine(self, v: float, half: float) -> None:
-        """One more pass across v ± half, towards its far end, more slowly than the search."""
-        v = self.clamp(v)
-        self.leg_lo, self.leg_hi = max(v - half, self.lo), min(v + half, self.hi)
-        self.refines += 1
+    def _next_pass(self, t: float) -> None:
+        """Converged, or one more pass across the band around the current estimate."""
+        cfg = self.cfg
+        v, se, half = self._estimate()
+        f = self.fit_top
+        if f is not None and math.isfinite(se):
+            c2 = abs(f.curvature[0])
+            loss = 0.5 * c2 * (2.0 * se) ** 2 / max(f.value(v), 1e-12)
+            if loss <= cfg.power_tol or self.passes >= MAX_REFINE:
+                self.reason = "optimum located" if loss <= cfg.power_tol else "best estimate"
+                self.converged_at(t, v, f.value(v))
+                self._go(v)
+                return
+        elif self.passes >= MAX_REFINE:
+            self.reason = "no curvature above the noise: the best point seen"
+            self.converged_at(t, v, None)
+            self._go(v)
+            return
+        self.passes += 1
+        self.span = (max(v - half, self.lo), min(v + half, self.hi))
+        # towards the end of the span farther from where wd is
         self.direction = 1.0 if self.wd < v else -1.0
         self.target = self.clamp(self.wd + self.direction * 1e-3)
-        self.rate = 0.5 * self.cfg.sweep_rate
+
+    def _refine_step(self, t: float) -> None:
+        lo, hi = self.span
+        inside = lo <= self.wd <= hi
+        # slow enough that the filter's lag (lead·rate·w) stays within half the span
+        fits = 0.5 * (hi - lo) / 2.0 / (self.lead * max(self.wd, self.lo))
+        self.rate = min(self.cfg.sweep_rate, fits) if inside else self.cfg.sweep_rate * FAST
+        near = 0.1 * (hi - lo)
+        done = self.wd >= hi - near if self.direction > 0 else self.wd <= lo + near
+        at_bound = self.target >= self.hi if self.direction > 0 else self.target <= self.lo
+        if done or at_bound:
+            self._next_pass(t)
 
     def _edge_verdict(self) -> str | None:
         """A bound the power still rises through, by K_EDGE standard errors of the slope of
-        a line through the rows near it."""
+        a line through the rows within 10 % of it, the best point seen near it."""
+        d = self.rows.view()
         for side, edge in (("upper", self.hi), ("lower", self.lo)):
-            d = self.rows.view()
+            if not abs(self.best_w - edge) <= 0.1 * edge:
+                continue
             near = d[np.abs(d[:, W] - edge) <= 0.1 * edge]
             if len(near) < MIN_ROWS or float(np.ptp(near[:, W])) < 0.02 * edge:
                 continue
@@ -336,33 +389,26 @@ class SweepSeeker(Seeker):
             if f is None:
                 continue
             slope, se = f.slope(edge)
-            outward = slope if side == "upper" else -slope
-            if outward > K_EDGE * se and min(abs(self.best_w - edge), abs(self.wd - edge)) < (
-                0.1 * edge
-            ):
+            if (slope if side == "upper" else -slope) > K_EDGE * se:
                 return side
         return None
 
-    def _go(self, v: float, f: Fit | None) -> None:
+    def _go(self, v: float) -> None:
         v = self.clamp(v)
-        self.target = v
-        self.settle_to = v
-        self.optimum = v
-        self.optimum_power = f.value(v) if f is not None else None
-        self.phase = SETTLING
+        f = self.fit_top
+        self.target = self.settle_to = self.optimum = v
+        self.optimum_power = f.value(v) if f is not None and f.w_lo <= v <= f.w_hi else None
+        self.stage, self.phase = "settle", SETTLING
         self.rate = 0.0
 
     def _converge(self, t: float) -> None:
-        self.phase = DONE
+        self.stage, self.phase = "track", DONE
         self.done = True
-        self.reason = self.reason or "optimum located"
         if self.cfg.track:
-            curv = None
-            if self.fit_top is not None and self.fit_top.concave():
-                curv = self.fit_top.curvature[0]
-            assert self.optimum is not None
             f = self.fit_top
+            curv = f.curvature[0] if f is not None and f.concave(2.0) else None
             noise = (f.sigma, f.inflate) if f is not None else None
+            assert self.optimum is not None
             self.tracker = Tracker(self, self.optimum, curv, t, self.rows, noise)
             self.tracking = True
 
@@ -376,9 +422,10 @@ class SweepSeeker(Seeker):
         self._report_from = t
         if len(d) < MIN_ROWS:
             return None
+        d = without_ripple(d, self.ripple)
         w = float(d[:, W].mean())
         f = fit(d, w, max(float(np.ptp(d[:, W])), 1e-3), curvature=0.0, ripple=False)
-        power = f.value(w) if f is not None else float(d[:, 2].mean())
+        power = f.value(w) if f is not None else float(d[:, P].mean())
         se = math.sqrt(max(float(f.cov[0, 0]), 0.0)) if f is not None else math.inf
         ev = Evaluation(float(d[-1, T]), w, power, se)
         self.evaluations.append(ev)
@@ -387,4 +434,4 @@ class SweepSeeker(Seeker):
     def fraction(self) -> float:
         if self.done:
             return 1.0
-        return min(0.2 * self.legs + 0.25 * self.refines + (0.5 if self.climbed else 0.0), 0.95)
+        return min(0.15 * self.legs + 0.5 * (self.stage == "refine") + 0.07 * self.passes, 0.95)

@@ -16,8 +16,13 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   track phase began near θ (|w − θ| ≤ 10 %, or three dither amplitudes), weighted by exp(−age/``track_memory``), with the ripple and a drift in time
   regressed out and the curvature fixed (from the search, else the generic −2p/θ² of a top
   where ±10 % in w costs 1 % in p): its slope b at θ and standard error σb;
-- a Newton step towards the vertex, θ ← θ − b/p'', shrunk by b²/(b² + 4σb²) (a slope lost
-  in the noise moves nothing) and limited to ``RATE``·θ per second;
+- the model's slope may change in time (an x·τ term): its vertex at the latest row is the
+  optimum *now*, so a drifting optimum is followed without the window's lag;
+- that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
+  walk of WANDER·θ per √s, each refit a measurement of variance σv²·track_memory/REFIT
+  (the windows overlap: a refit brings REFIT/track_memory of new data). On a clean signal
+  θ follows within seconds; on a noisy one it moves only as the evidence accumulates, so
+  noise does not make it wander. At most ``RATE``·θ per second;
 - at a bound, with the slope pointing outward beyond two standard errors: ``at_bound`` (or
   one expansion step with ``expand``). When θ leaves the bound again the optimum has come
   inside: the search's result is then recorded as converged there.
@@ -33,15 +38,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sessions.seekers.base import Evaluation
-from sessions.seekers.regression import Rows, T, W, fit
+from sessions.seekers.regression import P, Fit, Rows, T, W, fit
 
 if TYPE_CHECKING:
     from sessions.seekers.base import Seeker
 
 REFIT = 1.0  # s between steps
-SMOOTH = 5.0  # s: θ closes this fraction of its gap to the vertex per second, at most
-RATE = 0.01  # the most θ moves, as a fraction of θ per second
-WINDOW = 0.3  # rows within this fraction of θ are used
+WANDER = 0.005  # the optimum's random walk, fraction of θ per √s (the filter's prior)
+RATE = 0.02  # the most θ moves, as a fraction of θ per second
+WINDOW = 0.3  # rows within three dither amplitudes of θ are used, at most this fraction …
+NARROW = 0.08  # … and at least this one (away from θ a Hill curve is no parabola)
 MIN_ROWS = 50
 DITHER_COST = 0.003
 PRECISION = 0.02
@@ -59,7 +65,7 @@ def smoothstep(x: float) -> float:
 class Tracker:
     __slots__ = (
         "owner", "rows", "theta", "curv", "t0", "amp", "omega", "period", "memory",
-        "next_fit", "last_fit", "level", "noise", "amp_now",
+        "next_fit", "last_fit", "level", "noise", "amp_now", "x", "var",
     )  # fmt: skip
 
     def __init__(
@@ -85,6 +91,8 @@ class Tracker:
         self.last_fit = t0
         self.level = owner.optimum_power
         self.noise = noise  # (residual std of a row, its correlation inflation)
+        self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
+        self.var = (PRECISION * self.theta) ** 2
         self.amp_now = self._wanted()
         owner.optimum = self.theta
 
@@ -120,26 +128,70 @@ class Tracker:
             return None
         self.next_fit = t + REFIT
         dt_fit, self.last_fit = t - self.last_fit, t
+        f = self._fit(t)
+        if f is None:
+            return None
         theta = self.theta
-        d = self.rows.view(since=t - 3.0 * self.memory)
-        d = d[np.abs(d[:, W] - theta) <= WINDOW * theta]
+        v, se = f.now if f.now is not None else f.vertex()
+        if math.isfinite(v) and math.isfinite(se) and abs(v - theta) <= WINDOW * theta:
+            self._filter(v, se, dt_fit)
+        else:  # no maximum near θ in the rows (they are on a flank): a Newton step with
+            self._filter(math.nan, math.inf, dt_fit)  # the search's curvature, if it is
+            g = self._fit(t, fixed=True)  # clear which way the top went
+            if g is not None and g.now is not None:
+                u, su = g.now
+                if math.isfinite(u) and abs(u - theta) > 2.0 * su:
+                    self.x = u
+                    self.var = max(self.var, su * su)
+        limit = RATE * theta * dt_fit
+        new = self.owner.clamp(theta + min(max(self.x - theta, -limit), limit))
+        self._bounds(new, f, t)
+        self.theta = new
+        power = f.value(new)
+        self.level = power
+        self.noise = (f.sigma, f.inflate)
+        # follow the noise the fit sees, by at most 1.5× a refit (the dither stays smooth)
+        self.amp_now = min(max(self._wanted(), self.amp_now / 1.5), self.amp_now * 1.5)
+        owner = self.owner
+        owner.optimum = new
+        owner.optimum_power = power
+        ev = Evaluation(t, new, power, math.sqrt(max(float(f.cov[0, 0]), 0.0)))
+        owner.evaluations.append(ev)
+        return ev
+
+    def _fit(self, t: float, *, fixed: bool = False) -> Fit | None:
+        """The local model around θ (within three dither amplitudes), from the rows of the
+        track phase (the search's moves are transients: the tracking error and τ̂ are off
+        while wd accelerates), weighted by age, the curvature held near the search's (a
+        ridge: a dither alone cannot pin it down)."""
+        theta = self.theta
+        half = min(WINDOW, max(3.0 * self.amp_now / theta, NARROW))
+        d = self.rows.view(since=max(t - 3.0 * self.memory, self.t0))
+        d = d[np.abs(d[:, W] - theta) <= half * theta]
         if len(d) < MIN_ROWS:
             return None
         level = self.level if self.level is not None and self.level > 0.0 else None
         level = level or max(float(np.mean(d[:, P])), 1e-9)
         prior = self.curv if self.curv is not None else -2.0 * level / theta**2
         wts = np.exp(-(t - d[:, T]) / self.memory)
-        f = fit(d, theta, WINDOW * theta, prior=(prior, 0.5 * -prior), drift=True, weights=wts)
-        if f is None:
-            return None
-        v, se = f.vertex()
+        if fixed:
+            return fit(d, theta, half * theta, curvature=prior, moving=True, weights=wts)
+        return fit(d, theta, half * theta, prior=(prior, 0.5 * -prior), moving=True, weights=wts)
+
+    def _filter(self, v: float, se: float, dt: float) -> None:
+        """Kalman filter on the optimum: a random walk of WANDER·θ per √s, measured by the
+        fitted vertex *now* (the model's slope moves in time) with variance σ²·memory/dt
+        (overlapping windows: a refit brings dt/track_memory of new data)."""
+        self.var += (WANDER * self.theta) ** 2 * dt
+        if math.isfinite(v):
+            r = se * se * self.memory / max(dt, 1e-9)
+            gain = self.var / (self.var + r)
+            self.x += gain * (v - self.x)
+            self.var *= 1.0 - gain
+
+    def _bounds(self, new: float, f: Fit, t: float) -> None:
+        """At a bound with the slope pointing outward: at_bound (or expand)."""
         owner = self.owner
-        step = 0.0
-        if math.isfinite(v) and math.isfinite(se):
-            gap = v - theta
-            step = min(1.0, dt_fit / SMOOTH) * gap * gap * gap / (gap * gap + 4.0 * se * se)
-        limit = RATE * theta * dt_fit
-        new = owner.clamp(theta + min(max(step, -limit), limit))
         side = None
         for bound, name, sign in ((owner.hi, "upper", 1.0), (owner.lo, "lower", -1.0)):
             if abs(new - bound) <= 1e-9 * bound:
@@ -152,14 +204,3 @@ class Tracker:
         owner.at_bound = side
         if was is not None and side is None and owner.edge(new) is None:
             owner.converged_at(t, new, f.value(new))  # the optimum came inside
-        self.theta = new
-        power = f.value(new)
-        self.level = power
-        self.noise = (f.sigma, f.inflate)
-        # follow the noise the fit sees, by at most 1.5× a refit (the dither stays smooth)
-        self.amp_now = min(max(self._wanted(), self.amp_now / 1.5), self.amp_now * 1.5)
-        owner.optimum = new
-        owner.optimum_power = power
-        ev = Evaluation(t, new, power, math.sqrt(max(float(f.cov[0, 0]), 0.0)))
-        owner.evaluations.append(ev)
-        return ev
