@@ -88,7 +88,7 @@ class Tracker:
         self.omega = 2.0 * math.pi / cfg.dither_period
         self.memory = cfg.track_memory
         self.next_fit = t0 + REFIT
-        self.last_fit = t0
+        self.last_fit = t0 + cfg.dither_period
         self.level = owner.optimum_power
         self.noise = noise  # (residual std of a row, its correlation inflation)
         self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
@@ -127,6 +127,8 @@ class Tracker:
         if t < self.next_fit:
             return None
         self.next_fit = t + REFIT
+        if t < self.t0 + self.period:  # a whole dither period first: no slope from a transient
+            return None
         dt_fit, self.last_fit = t - self.last_fit, t
         f = self._fit(t)
         if f is None:
@@ -140,9 +142,10 @@ class Tracker:
             g = self._fit(t, fixed=True)  # clear which way the top went
             if g is not None and g.now is not None:
                 u, su = g.now
-                if math.isfinite(u) and abs(u - theta) > 2.0 * su:
+                if math.isfinite(u) and abs(u - theta) > 3.0 * su and su < 0.05 * theta:
                     self.x = u
                     self.var = max(self.var, su * su)
+        self.x = min(max(self.x, (1.0 - WINDOW) * theta), (1.0 + WINDOW) * theta)
         limit = RATE * theta * dt_fit
         new = self.owner.clamp(theta + min(max(self.x - theta, -limit), limit))
         self._bounds(new, f, t)
