@@ -184,9 +184,9 @@ class PerturbationSeeker(Seeker):
         self._ddtheta = -alpha_f * dtheta + dkappa
         if t - self.period_start < self.period:
             return None
-        return self._period_done(t, dkappa)
+        return self._period_done(t)
 
-    def _period_done(self, t: float, dkappa: float) -> Evaluation:
+    def _period_done(self, t: float) -> Evaluation:
         """One dither period done: record it, report a bound, test convergence."""
         cfg = self.cfg
         self.period_start += self.period
@@ -196,10 +196,13 @@ class PerturbationSeeker(Seeker):
         self.theta_marks.append(theta)
         self.optimum, self.optimum_power = theta, self.eta
         self.bracket = (max(self.lo, theta - self.ae), min(self.hi, theta + self.ae))
-        push = self.kappa + dkappa * self.period  # where the gradient is taking θ
-        if theta >= self.theta_hi and push >= 0.0:
+        # held at a projection limit for a whole period: the gradient pushes outward (an
+        # optimum inside would have pulled θ off within a period)
+        tol = 0.1 * self.ae
+        held = self.theta_marks[-2:]
+        if len(held) == 2 and min(held) >= self.theta_hi - tol:
             self.at_bound = "upper"
-        elif theta <= self.theta_lo and push <= 0.0:
+        elif len(held) == 2 and max(held) <= self.theta_lo + tol:
             self.at_bound = "lower"
         else:
             if self.at_bound is not None and self.done:
