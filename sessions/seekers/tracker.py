@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from sessions.seekers.base import Seeker
 
 REFIT = 1.0  # s between steps
-WANDER = 0.005  # the optimum's random walk, fraction of θ per √s (the filter's prior)
+WANDER = 0.02  # the optimum's random walk, fraction of θ per √s (the filter's prior)
 RATE = 0.02  # the most θ moves, as a fraction of θ per second
 WINDOW = 0.3  # rows within three dither amplitudes of θ are used, at most this fraction …
 NARROW = 0.08  # … and at least this one (away from θ a Hill curve is no parabola)
@@ -106,7 +106,21 @@ class Tracker:
         return self.amp_now
 
     def _wanted(self) -> float:
-        """The dither amplitude the noise asks for, within its bounds (module docstring)."""
+        """The first dither amplitude: what the search's noise asks for, within bounds."""
+        theta = self.theta
+        top = self._cap()
+        curv = self.curv
+        if curv is None and self.level is not None and self.level > 0.0:
+            curv = -2.0 * self.level / theta**2
+        if self.noise is None or curv is None:
+            return top
+        sigma, inflate = self.noise
+        n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
+        want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
+        return min(max(want, MIN_DITHER * theta), max(top, MIN_DITHER * theta))
+
+    def _cap(self) -> float:
+        """``dither``·θ, and at most DITHER_COST of the power lost at the dither's extremes."""
         theta = self.theta
         top = self.amp * theta
         level = self.level if self.level is not None and self.level > 0.0 else None
@@ -115,12 +129,7 @@ class Tracker:
             curv = -2.0 * level / theta**2
         if curv is not None and level is not None:
             top = min(top, math.sqrt(2.0 * DITHER_COST * level / -curv))
-        if self.noise is None or curv is None:
-            return top
-        sigma, inflate = self.noise
-        n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
-        want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
-        return min(max(want, MIN_DITHER * theta), max(top, MIN_DITHER * theta))
+        return top
 
     def update(self, t: float) -> Evaluation | None:
         """A step towards the fitted vertex when one is due; the evaluation it records."""
@@ -153,7 +162,7 @@ class Tracker:
         power = f.value(new)
         self.level = power
         self.noise = (f.sigma, f.inflate)
-        # follow the noise the fit sees, by at most 1.5× a refit (the dither stays smooth)
+        # the dither the fit's noise asks for, by at most 1.5× a refit (it stays smooth)
         self.amp_now = min(max(self._wanted(), self.amp_now / 1.5), self.amp_now * 1.5)
         owner = self.owner
         owner.optimum = new
