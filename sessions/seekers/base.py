@@ -330,8 +330,8 @@ class FilteredSeeker(Seeker):
         self.phase = DONE
         if self.at_bound is None:
             self.converged_at(t, final, self.optimum_power)
-        if self.cfg.track and self.kind != "fixed":
-            self.start_tracking(t)
+        if self.cfg.track and self.kind not in ("fixed", "parabolic-as-printed"):
+            self.start_tracking(t)  # (the misprint's demonstration runs Appendix A alone)
 
     def _power_near(self, v: float) -> float | None:
         if not self.evaluations:

@@ -82,7 +82,7 @@ class Rows:
         wd = self._sd / k
         e = self._sw / k - wd
         em = self.e_mean
-        self.e_mean = e if em != em else em + self.alpha * (e - em)  # em != em: nan, no mean yet
+        self.e_mean = e if math.isnan(em) else em + self.alpha * (e - em)
         if self.size == len(self.data):  # keep the newest half: amortised O(1)
             self.data[: self.capacity] = self.data[self.capacity :]
             self.size = self.capacity

@@ -42,7 +42,7 @@ import numpy as np
 from sessions.config import SeekerConfig
 from sessions.filters import TrajectoryFilter
 from sessions.seekers.base import DELAY, DONE, MEASURING, SETTLING, Evaluation, Seeker
-from sessions.seekers.regression import P, T, W, Fit, Rows, fit, fit_ripple, without_ripple
+from sessions.seekers.regression import Fit, P, Rows, T, W, fit, fit_ripple, without_ripple
 from sessions.seekers.tracker import Tracker
 
 REFIT = 0.2  # s between decisions
@@ -290,7 +290,15 @@ class SweepSeeker(Seeker):
             near = d[np.abs(d[:, W] - centre) <= half * centre]
             if len(near) < MIN_ROWS:
                 return f
-            g = fit(near, centre, max(half * centre, 1e-3), misfit_test=half > NARROWEST)
+            # a level drifting in time (fatigue) once the legs have gone both ways
+            both_ways = self.legs + self.passes >= 2
+            g = fit(
+                near,
+                centre,
+                max(half * centre, 1e-3),
+                misfit_test=half > NARROWEST,
+                drift=both_ways,
+            )
             if g is None:
                 return f
             if g.misfit > MISFIT and half > NARROWEST:  # not a parabola at this width

@@ -13,9 +13,10 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   it costs half that, well within the 1 % the issue allows; on a clean signal it is a few
   tenths of a per cent of θ;
 - every ``REFIT`` seconds, the local model of :mod:`.regression` over the samples since the
-  track phase began near θ (|w − θ| ≤ 10 %, or three dither amplitudes), weighted by exp(−age/``track_memory``), with the ripple and a drift in time
-  regressed out and the curvature fixed (from the search, else the generic −2p/θ² of a top
-  where ±10 % in w costs 1 % in p): its slope b at θ and standard error σb;
+  track phase began near θ (three dither amplitudes, 8-30 % of θ), weighted by
+  exp(−age/``track_memory``), with the ripple and a drift in time regressed out and the
+  curvature held near the search's (a ridge), else the generic −2p/θ² of a top where ±10 %
+  in w costs 1 % in p;
 - the model's slope may change in time (an x·τ term): its vertex at the latest row is the
   optimum *now*, so a drifting optimum is followed without the window's lag;
 - that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
@@ -38,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sessions.seekers.base import Evaluation
-from sessions.seekers.regression import P, Fit, Rows, T, W, fit
+from sessions.seekers.regression import Fit, P, Rows, T, W, fit
 
 if TYPE_CHECKING:
     from sessions.seekers.base import Seeker
@@ -112,8 +113,8 @@ class Tracker:
         curv = self.curv
         if curv is None and self.level is not None and self.level > 0.0:
             curv = -2.0 * self.level / theta**2
-        if self.noise is None or curv is None:
-            return top
+        if self.noise is None or curv is None:  # unknown: start small, grow as the fit asks
+            return min(4.0 * MIN_DITHER * theta, top)
         sigma, inflate = self.noise
         n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
         want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)

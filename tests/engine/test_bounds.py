@@ -81,7 +81,12 @@ def test_an_optimum_beyond_the_bracket_is_reported_at_the_bound(
     seeker: str, user: dict, bracket: list[float], side: str, edge: float
 ) -> None:
     cfg = parse_session_config(
-        {"duration": 90.0, "rate": 500.0, "user": user, "seeker": {"kind": seeker, "bracket": bracket}}
+        {
+            "duration": 90.0,
+            "rate": 500.0,
+            "user": user,
+            "seeker": {"kind": seeker, "bracket": bracket},
+        }
     )
     result = run_simulation(cfg)
     s = score(result)
@@ -118,9 +123,9 @@ def test_expand_moves_the_bound_in_steps_up_to_its_limit() -> None:
 def test_expand_needs_a_limit_that_contains_the_bracket() -> None:
     from sessions.config import ScenarioError
 
-    with pytest.raises(ScenarioError, match="seeker.expand_limit: required"):
+    with pytest.raises(ScenarioError, match=r"seeker\.expand_limit: required"):
         parse_session_config({"seeker": {"expand": True}})
-    with pytest.raises(ScenarioError, match="seeker.expand_limit: must contain"):
+    with pytest.raises(ScenarioError, match=r"seeker\.expand_limit: must contain"):
         parse_session_config({"seeker": {"expand": True, "expand_limit": [2.0, 5.0]}})
 
 

@@ -59,7 +59,7 @@ def test_loop_begin_makes_rise_start_from_zero_torque(
     seeker = loop.seeker
     plain = type(seeker).begin
 
-    def in_motion(self, w0: float) -> None:  # noqa: ANN001
+    def in_motion(self, w0: float) -> None:
         plain(self, w0)
         self.wd, self.ad = 0.5, 1.3
 

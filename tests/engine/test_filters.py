@@ -58,7 +58,7 @@ def test_frequency_response_is_that_of_equation_32(order: int, omega: float) -> 
     dt = 1e-3
     f = TrajectoryFilter(order, 3.0, dt)
     f.reset(0.0)
-    n = int(round(40.0 / dt))
+    n = round(40.0 / dt)
     t = np.arange(n) * dt
     y = np.empty(n)
     for k in range(n):

@@ -116,10 +116,12 @@ def test_fit_recovers_a_parabola_under_multiplicative_ripple() -> None:
     p = base * (1.0 + 0.2 * np.sin(q) + 0.1 * np.cos(2 * q))
     f = fit(rows_of(w, p, q), 3.0, 0.6)
     assert f is not None
-    v, se = f.vertex()
+    v, _ = f.vertex()
     assert v == pytest.approx(3.0, abs=2e-3)
     assert f.curvature[0] == pytest.approx(-4.0, rel=1e-2)
-    assert f.ripple[0] == pytest.approx(0.2, abs=5e-3) and f.ripple[3] == pytest.approx(0.1, abs=5e-3)
+    assert f.ripple[0] == pytest.approx(0.2, abs=5e-3) and f.ripple[3] == pytest.approx(
+        0.1, abs=5e-3
+    )
     plain = fit(rows_of(w, p, q), 3.0, 0.6, ripple=False)  # without the ripple terms: off
     assert plain is not None and abs(plain.vertex()[0] - 3.0) > 5 * abs(v - 3.0)
 

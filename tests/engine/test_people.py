@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -166,7 +167,7 @@ def test_table_is_monotone_between_points_and_zero_past_the_last() -> None:
     assert user.torque(0.0, 9.0) == 0.0  # past the last point: nothing
     grid = np.linspace(0.5, 8.0, 3001)
     tau = np.array([user.torque(0.0, float(w)) for w in grid])
-    for (w1, t1), (w2, t2) in zip(pts, pts[1:], strict=False):
+    for (w1, t1), (w2, t2) in itertools.pairwise(pts):
         seg = tau[(grid >= w1) & (grid <= w2)]
         lo, hi = min(t1, t2), max(t1, t2)
         assert seg.min() >= lo - 1e-12 and seg.max() <= hi + 1e-12  # PCHIP: no overshoot

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-
-import numpy as np
 
 from sessions.config import SeekerConfig, parse_session_config
 from sessions.seekers import make_seeker
@@ -204,9 +203,9 @@ def test_perturbation_stops_only_once_theta_has_arrived() -> None:
         assert abs(stop - w_star) < cfg.seeker.min_step
         # the old rule would have stopped far earlier, well away from w*
         old = next(
-            i for i in range(4, len(marks)) if all(
-                abs(marks[j] - marks[j - 1]) < cfg.seeker.min_step for j in range(i - 3, i + 1)
-            )
+            i
+            for i in range(4, len(marks))
+            if all(abs(marks[j] - marks[j - 1]) < cfg.seeker.min_step for j in range(i - 3, i + 1))
         )
         assert abs(marks[old] - w_star) > 3 * abs(stop - w_star)
         assert r.column("wd")[-1] == pytest.approx(stop, abs=1e-6)  # the dither has faded
