@@ -163,9 +163,8 @@ def test_each_power_is_placed_where_it_was_produced() -> None:
     def worst(measure: str) -> float:
         # the paper's gains: a slow integral, so the tracking error lasts into the first window
         cfg = experiment("exp2", paper=True, seeker="brent", duration=25.0)
-        cfg = cfg.model_copy(
-            update={"seeker": cfg.seeker.model_copy(update={"measure": measure, "track": False})}
-        )
+        seeker = {"measure": measure, "track": False}
+        cfg = cfg.model_copy(update={"seeker": cfg.seeker.model_copy(update=seeker)})
         r = run_simulation(cfg)
         p_star = r.user.optimum()[1]
         return max(abs(ev.power - r.user.true_power(ev.candidate)) / p_star for ev in r.evaluations)

@@ -94,3 +94,19 @@ def test_a_summary_stored_before_the_new_fields_still_parses() -> None:
 def test_summary_rejects_impossible_values(bad: dict[str, float]) -> None:
     with pytest.raises(ValidationError):
         SessionSummary(**bad)  # type: ignore[arg-type]
+
+
+def test_regret_is_taken_at_the_actual_velocity() -> None:
+    # a person far stronger than the motor (τ0 = 20 N·m against a 1 N·m limit): the handle
+    # runs away from wd to where the person's torque falls to the motor's (7.9 rad/s, 2.6 w*).
+    # The regret at the actual velocity says so; at wd it would look like a fair session.
+    cfg = parse_session_config(
+        {"duration": 20.0, "machine": {"max_torque": 1.0}, "user": {"tau0": 20.0, "wmax": 10.0}}
+    )
+    r = run_simulation(cfg)
+    assert r.summary is not None and r.summary.regret is not None
+    t, wd = r.column("t"), r.column("wd")
+    after = t >= cfg.seeker.start_delay
+    at_wd = 1.0 - float(np.mean(r.user.power_ratio(wd[after], t[after])))
+    assert r.summary.regret > 0.5
+    assert at_wd < 0.3
