@@ -14,11 +14,12 @@ passes), first and second harmonic (one and two pushes per revolution).
 
 The abscissa w of a row is where the power was produced, without what the person's own
 fluctuation did to it: wd + ē, the commanded velocity plus the tracking error averaged over
-``E_SMOOTH`` (0.5 s). Not the raw w: a person pushing harder for a moment speeds the handle
+``E_SMOOTH`` (2 s). Not the raw w: a person pushing harder for a moment speeds the handle
 up before the controller brings it back, so the raw w and the power's noise move together,
 and a regression on the raw w reads that as a slope (an errors-in-variables bias: with 5 %
 noise and a ±4 % dither it moves the fitted top by ~8 %). wd is exogenous (the seeker sets
-it); ē, averaged far beyond the noise's correlation time, keeps the abscissa unbiased by a
+it); ē, averaged far beyond the noise's correlation time and the stroke's period (the
+ripple moves the handle too), keeps the abscissa unbiased by a
 lasting tracking error (the bias of the paper's (13)).
 
 Uncertainty: the residuals of neighbouring blocks are correlated (band-limited noise); the
@@ -37,7 +38,7 @@ COLUMNS = ("t", "w", "p", "s1", "c1", "s2", "c2")
 T, W, P, S1, C1, S2, C2 = range(7)
 
 
-E_SMOOTH = 0.5  # s: the tracking error's average in the abscissa
+E_SMOOTH = 2.0  # s: the tracking error's average in the abscissa
 
 
 class Rows:

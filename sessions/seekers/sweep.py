@@ -306,8 +306,14 @@ class SweepSeeker(Seeker):
                 continue
             f = g
             v, _ = f.vertex()
-            if not (math.isfinite(v) and f.concave(2.0)):
-                return f
+            if not (math.isfinite(v) and f.concave(2.0) and f.w_lo <= v <= f.w_hi):
+                # no top inside: move towards the better end of what the rows cover
+                end = f.w_hi if f.value(f.w_hi) >= f.value(f.w_lo) else f.w_lo
+                end = min(max(end, self.lo), self.hi)
+                if abs(end - centre) <= 0.02 * centre:
+                    return f
+                centre = self.best_w = end
+                continue
             new = min(max(v, f.w_lo, self.lo), f.w_hi, self.hi)
             band = math.sqrt(2.0 * 0.01 * max(f.value(new), 1e-12) / abs(f.curvature[0]))
             narrow = min(max(3.0 * band / new, NARROWEST), TOP)
@@ -325,7 +331,8 @@ class SweepSeeker(Seeker):
             if math.isfinite(v) and f.w_lo <= v <= f.w_hi:
                 c2 = abs(f.curvature[0])
                 band = math.sqrt(2.0 * 0.01 * max(f.value(v), 1e-12) / c2)
-                return self.clamp(v), se, min(max(band, 0.03 * v), TOP * v)
+                # 80 % of it: the curvature a parabola fits to a skewed top is a little low
+                return self.clamp(v), se, min(max(0.8 * band, 0.03 * v), TOP * v)
         v = self.clamp(self.best_w if math.isfinite(self.best_w) else self.wd)
         if f is not None and f.coef[2] < 0.0:  # a maximum, not yet significant: still the best
             u, _ = f.vertex()

@@ -8,10 +8,10 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   over one period and clipped to the bracket): it spreads w around θ so that the local slope
   of p(w) can be seen. A is as small as the noise allows: the amplitude at which the slope
   over ``track_memory`` pins θ down to PRECISION (2 %), from the fit's own residual noise,
-  between 0.25 % of θ and ``dither``·θ (5 %), and never more than loses DITHER_COST (0.3 %)
-  of the power at its extremes on the measured curvature (½|p''|A² ≤ 0.003 p). On average
-  it costs half that, well within the 1 % the issue allows; on a clean signal it is a few
-  tenths of a per cent of θ;
+  between 0.8 % of θ (less would drown in what the model misses) and ``dither``·θ (5 %),
+  and never more than loses DITHER_COST (0.3 %) of the power at its extremes on the
+  measured curvature (½|p''|A² ≤ 0.003 p). On average it costs half that, well within the
+  1 % the issue allows;
 - every ``REFIT`` seconds, the local model of :mod:`.regression` over the samples since the
   track phase began near θ (three dither amplitudes, 8-30 % of θ), weighted by
   exp(−age/``track_memory``), with the ripple and a drift in time regressed out and the
@@ -52,7 +52,7 @@ NARROW = 0.08  # … and at least this one (away from θ a Hill curve is no para
 MIN_ROWS = 50
 DITHER_COST = 0.003
 PRECISION = 0.02
-MIN_DITHER = 0.0025
+MIN_DITHER = 0.008
 
 
 def smoothstep(x: float) -> float:
@@ -114,7 +114,7 @@ class Tracker:
         if curv is None and self.level is not None and self.level > 0.0:
             curv = -2.0 * self.level / theta**2
         if self.noise is None or curv is None:  # unknown: start small, grow as the fit asks
-            return min(4.0 * MIN_DITHER * theta, top)
+            return min(MIN_DITHER * theta, top)
         sigma, inflate = self.noise
         n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
         want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
