@@ -14,7 +14,7 @@ passes), first and second harmonic (one and two pushes per revolution).
 
 The abscissa w of a row is where the power was produced, without what the person's own
 fluctuation did to it: wd + ē, the commanded velocity plus the tracking error averaged over
-``E_SMOOTH`` (2 s). Not the raw w: a person pushing harder for a moment speeds the handle
+``E_SMOOTH`` (1 s). Not the raw w: a person pushing harder for a moment speeds the handle
 up before the controller brings it back, so the raw w and the power's noise move together,
 and a regression on the raw w reads that as a slope (an errors-in-variables bias: with 5 %
 noise and a ±4 % dither it moves the fitted top by ~8 %). wd is exogenous (the seeker sets
@@ -38,7 +38,8 @@ COLUMNS = ("t", "w", "p", "s1", "c1", "s2", "c2")
 T, W, P, S1, C1, S2, C2 = range(7)
 
 
-E_SMOOTH = 2.0  # s: the tracking error's average in the abscissa
+E_SMOOTH = 1.0  # s: the tracking error's average in the abscissa
+MAX_SHARPNESS = 30.0  # the most ½|p''|w²/p a person's top can have
 
 
 class Rows:
@@ -153,7 +154,13 @@ class Fit:
         return 2.0 * float(self.coef[2]) / h2, 2.0 * math.sqrt(max(self.cov[2, 2], 0.0)) / h2
 
     def concave(self, k: float = 2.0) -> bool:
+        """A maximum beyond k standard errors, and a plausible one: no sharper than a top
+        whose 99 % band is ±1.8 % of w (½|p''|w²/p ≤ MAX_SHARPNESS), which no person's curve
+        is; sharper is a fit to too few rows or a transient."""
         c, se = self.curvature
+        level = float(self.coef[0])
+        if level > 0.0 and 0.5 * -c * self.center**2 / level > MAX_SHARPNESS:
+            return False
         return c < -k * se
 
     def vertex(self) -> tuple[float, float]:

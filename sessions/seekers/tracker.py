@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sessions.seekers.base import Evaluation
-from sessions.seekers.regression import Fit, P, Rows, T, W, fit
+from sessions.seekers.regression import MAX_SHARPNESS, Fit, P, Rows, T, W, fit
 
 if TYPE_CHECKING:
     from sessions.seekers.base import Seeker
@@ -186,6 +186,9 @@ class Tracker:
         level = self.level if self.level is not None and self.level > 0.0 else None
         level = level or max(float(np.mean(d[:, P])), 1e-9)
         prior = self.curv if self.curv is not None else -2.0 * level / theta**2
+        # within what a person's top can be: ½|p''|θ²/p between 0.1 and MAX_SHARPNESS
+        sharp = 0.5 * -prior * theta**2 / level
+        prior *= min(max(sharp, 0.1), MAX_SHARPNESS) / max(sharp, 1e-12)
         wts = np.exp(-(t - d[:, T]) / self.memory)
         if fixed:
             return fit(d, theta, half * theta, curvature=prior, moving=True, weights=wts)
