@@ -36,8 +36,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from server.harness import cpu_seconds
-from webui.harness import TRAINER, VIEWPORT, DemoServer, chromium, login
+from _server import cpu_seconds  # (first: it puts the checkout on sys.path)
+
+from testing.browser import TRAINER, VIEWPORT, DemoServer, chromium, login
 
 ADA = 1  # the first demo user: a Hill user, τ0 = 3 N·m, wmax = 10 rad/s
 

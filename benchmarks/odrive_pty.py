@@ -30,13 +30,19 @@ import numpy as np
 from sessions.config import parse_session_config
 from sessions.loop import Loop
 from sessions.machine import MachineSpec, make_machine
-from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
+from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
+
+
+def odrive(path: str, **kw: float) -> MachineSpec:
+    """The emulated rig's drive (its motor's torque constant)."""
+    kt = EmulatorConfig().torque_constant
+    return MachineSpec(kind="odrive", device=path, torque_constant=kt, **kw)  # type: ignore[arg-type]
 
 
 def free_run(path: str, seconds: float) -> dict[str, float]:
     cfg = parse_session_config({"duration": seconds + 10, "seeker": {"kind": "fixed"}})
-    m = make_machine(MachineSpec(kind="odrive", device=path))
+    m = make_machine(odrive(path))
     m.connect()
     m.arm(cfg)
     loop = Loop(cfg)
@@ -108,16 +114,14 @@ def main() -> None:
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
     with EmulatorProcess(EmulatorConfig()) as emu:
-        limits = {"timeout": args.timeout, "watchdog_timeout": args.watchdog}
-        spec = MachineSpec(
-            kind="odrive", device=emu.path, **{k: v for k, v in limits.items() if v is not None}
-        )
+        limits = {"reply_timeout": args.timeout, "watchdog_timeout": args.watchdog}
+        spec = odrive(emu.path, **{k: v for k, v in limits.items() if v is not None})
         out: dict[str, object] = dict(free_run(emu.path, args.seconds))
         out["paced"] = {
             f"{rate:g}": paced(emu.path, args.seconds, rate, not args.no_realtime, spec)
             for rate in (1000.0, 500.0)
         }
-        out["reply_timeout_s"] = spec.timeout
+        out["reply_timeout_s"] = spec.reply_timeout
         out["watchdog_timeout_s"] = spec.watchdog_timeout
     p500 = out["paced"]["500"]  # type: ignore[index]
     out["target_500hz_met"] = bool(

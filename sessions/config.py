@@ -16,8 +16,14 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from sessions import stability
+
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+SEED_LIMIT = 2**63  # seeds are 0 ≤ seed < 2^63: numpy's SeedSequence takes them, and every
+# database's 64-bit integer holds them
 
 
 class StrictModel(BaseModel):
@@ -154,13 +160,17 @@ class UserConfig(StrictModel):
 
 
 class ControllerConfig(StrictModel):
-    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise")."""
+    """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise").
+
+    Their upper bounds depend on the loop rate and the inertia, so SessionConfig checks them
+    (sessions/stability.py): k·dt/J ≤ 1; (ks + 1)·dt/J ≤ 2/(2 − αr·dt); αr·dt ≤ ½; β's
+    sign-integral ripple within 1/20 of the torque limit."""
 
     kind: Literal["rise", "measured"] = "rise"
-    ks: Positive = Field(4.0, description="RISE gain ks (23)")
-    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s")
-    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s")
-    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad")
+    ks: Positive = Field(4.0, description="RISE gain ks (23); (ks + 1)·dt/J ≤ 2/(2 − αr·dt)")
+    beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s; ripple ≤ 1/20 torque limit")
+    alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s; αr·dt ≤ 1/2")
+    k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad; k·dt/J ≤ 1")
 
 
 class FilterConfig(StrictModel):
@@ -290,7 +300,9 @@ class SessionConfig(StrictModel):
 
     duration: Positive = Field(120.0, le=24 * 3600, description="s")
     rate: Positive = Field(1000.0, ge=50.0, le=20000.0, description="loop rate, Hz")
-    seed: int = Field(1, ge=0, description="seeds every random process of the simulated user")
+    seed: int = Field(
+        1, ge=0, lt=SEED_LIMIT, description="seeds every random process of the simulated user"
+    )
     machine: MachineConfig = MachineConfig()
     user: UserConfig = UserConfig()
     controller: ControllerConfig = ControllerConfig()
@@ -306,6 +318,22 @@ class SessionConfig(StrictModel):
             )
         if self.seeker.setpoint is not None and self.seeker.setpoint >= self.machine.max_velocity:
             raise ValueError("seeker.setpoint: must be below machine.max_velocity")
+        if self.seeker.kind == "perturbation" and top + self.seeker.amplitude >= (
+            self.machine.max_velocity
+        ):  # θ is projected onto the bracket; the dither rides on it
+            raise ValueError(
+                f"seeker.amplitude: γ3 + ae = {top + self.seeker.amplitude:g} must be below "
+                f"machine.max_velocity = {self.machine.max_velocity}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _holdable(self) -> SessionConfig:
+        """Gains and a reference the discrete loop can hold at this rate and inertia: the
+        bounds of :mod:`sessions.stability`, checked for every entry point (TOML, REST, UI)."""
+        problem = stability.violation(self)
+        if problem is not None:
+            raise ValueError(problem)
         return self
 
     @property
@@ -320,8 +348,9 @@ class ScenarioError(ValueError):
     """A scenario that cannot be used, with a one-line reason naming the key."""
 
 
-def describe_validation_error(exc: ValidationError) -> str:
-    """One line per problem: ``key.path: reason``."""
+def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    """``(key.path, reason)`` per problem (a model-level check names its key in its message,
+    ``"seeker.bracket: …"``; it is taken from there)."""
     parts = []
     for err in exc.errors():
         path = [str(x) for x in err["loc"]]
@@ -337,8 +366,13 @@ def describe_validation_error(exc: ValidationError) -> str:
             msg = "unknown key"
         elif err["type"] != "value_error" and "input" in err and not isinstance(err["input"], dict):
             msg = f"{msg} (got {err['input']!r})"
-        parts.append(f"{loc}: {msg}")
-    return "; ".join(parts)
+        parts.append((loc, msg))
+    return parts
+
+
+def describe_validation_error(exc: ValidationError) -> str:
+    """One line for every problem: ``key.path: reason; …``."""
+    return "; ".join(f"{key}: {reason}" for key, reason in validation_problems(exc))
 
 
 def parse_session_config(data: dict[str, Any]) -> SessionConfig:

@@ -28,6 +28,7 @@ from sessions.limits import Limits
 from sessions.objective import modified_power, surrogate_power
 from sessions.passivity import PassivityMonitor
 from sessions.seekers import Evaluation, make_seeker
+from sessions.stability import deadbeat_gain
 from sessions.telemetry import INDEX, WIDTH
 from sessions.truth import RegretMeter, Truth
 
@@ -48,7 +49,7 @@ class Loop:
         self.k = 0
         self.controller = make_controller(cfg.controller, m.inertia)
         self.seeker = make_seeker(cfg.seeker, self.dt, m.max_velocity, as_printed=as_printed)
-        self.limits = Limits(m.max_torque, m.max_velocity)
+        self.limits = Limits(m.max_torque, m.max_velocity, deadbeat_gain(m.inertia, self.dt))
         self.passivity = PassivityMonitor(m.passivity_c2)
         self.rho = cfg.seeker.rho
         self.surrogate = cfg.seeker.objective == "surrogate"
@@ -81,8 +82,12 @@ class Loop:
         self.controller.begin(w0 - seeker.wd, seeker.ad)
         self.row = (0.0, q0, w0, seeker.wd, seeker.ad, 0.0, 0.0, 0.0, 0.0, seeker.target)
 
-    def step(self, q: float, w: float, tau_measured: float = math.nan) -> float:
-        """One period: the measured state in, the motor torque to apply out."""
+    def step(
+        self, q: float, w: float, tau_measured: float = math.nan, held: float | None = None
+    ) -> float:
+        """One period: the measured state in, the motor torque to apply out. ``held``: this
+        period has passed already (the worker missed it) and the drive applied ``held`` over
+        it; the step accounts for it with that torque (docs/engine.md, missed periods)."""
         dt = self.dt
         t = self.k * dt
         command, apply, commit, add_work, tell = self._calls
@@ -92,6 +97,8 @@ class Loop:
         e = w - wd  # (3)
         u_cmd = command(e, ad, tau_measured)
         u = apply(u_cmd, w)
+        if held is not None:  # the observer (28) and the record see what was applied
+            u = u_cmd = held
         tau = commit(e, ad, tau_measured, u, u_cmd, dt)
         x = w if self.at_w else wd
         p = surrogate_power(x) if self.surrogate else modified_power(tau, x, self.rho)

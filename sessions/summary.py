@@ -16,7 +16,6 @@ from sessions.loop import Loop
 from sessions.seekers.base import is_finite
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-SessionStatus = Literal["running", "completed", "stopped", "aborted", "faulted"]
 Bound = Literal["lower", "upper"]
 
 

@@ -12,16 +12,17 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import viser
 import viser.uplot as up
 
-from sessions.worker.ring import INDEX as RING
+from sessions.telemetry import RECORD_INDEX
 
 WINDOW_S = 10.0  # s of live data on screen
 SAMPLE_RATE = 50.0  # samples per second in the live window
 MAX_POINTS = 500  # at most this many points per live series
 HISTORY_POINTS = 2000  # a past session, decimated by the store (min/max pairs)
 
-# Ring columns the live window keeps, in this order.
+# The channels of a live record (sessions.telemetry) the live window keeps, in this order.
 LIVE_COLUMNS: tuple[str, ...] = (
     "t",
     "q",
@@ -37,7 +38,7 @@ LIVE_COLUMNS: tuple[str, ...] = (
     "session",
 )
 LIVE = {name: i for i, name in enumerate(LIVE_COLUMNS)}
-_RING_COLS = np.array([RING[name] for name in LIVE_COLUMNS])
+_RECORD_COLS = np.array([RECORD_INDEX[name] for name in LIVE_COLUMNS])
 
 NUMBERS = {"time": False}
 AXIS_GREY = "#888"
@@ -52,10 +53,12 @@ class LiveWindow:
         self.max_points = max_points
         self.rows = np.empty((0, len(LIVE_COLUMNS)))
 
-    def extend(self, ring_rows: np.ndarray) -> None:
-        if not len(ring_rows):
+    def extend(self, records: np.ndarray) -> None:
+        """Live records (all their channels, as the hub publishes them) of one or more
+        sessions."""
+        if not len(records):
             return
-        new = ring_rows[:, _RING_COLS]
+        new = records[:, _RECORD_COLS]
         session = new[:, LIVE["session"]]
         change = np.flatnonzero(session != session[-1])
         if len(change):  # keep only the newest session's samples
@@ -123,8 +126,13 @@ def series(label: str, stroke: str, **extra: Any) -> up.Series:
 
 
 def time_chart(
-    gui: Any, title: str, labels: Sequence[tuple[str, str]], *, height: int = 150, x: str = "t [s]"
-) -> Any:
+    gui: viser.GuiApi,
+    title: str,
+    labels: Sequence[tuple[str, str]],
+    *,
+    height: int = 150,
+    x: str = "t [s]",
+) -> viser.GuiUplotHandle:
     """A chart of several series against time (seconds, not dates)."""
     return gui.add_uplot(
         data=nonempty((np.zeros(0),) * (len(labels) + 1)),
@@ -139,7 +147,7 @@ def time_chart(
 class LiveCharts:
     """Velocity, torque, power and passivity over the live window."""
 
-    def __init__(self, gui: Any) -> None:
+    def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
             gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
         )
@@ -172,7 +180,7 @@ class LiveCharts:
 class SessionCharts:
     """A past session, from the store's decimated telemetry (the same four charts)."""
 
-    def __init__(self, gui: Any) -> None:
+    def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
             gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
         )
@@ -233,14 +241,31 @@ def seeker_range(evaluations: Sequence[tuple[float, float]]) -> tuple[float, flo
     return (lo - pad, hi + pad)
 
 
-def seeker_scales(evaluations: Sequence[tuple[float, float]]) -> dict[str, up.Scale]:
+def seeker_x_range(
+    evaluations: Sequence[tuple[float, float]], bracket: tuple[float, float] | None
+) -> tuple[float, float]:
+    """The velocity axis: every candidate and the bracket, with 5 % of their spread around
+    them. (Explicit: viser 1.1.1's client keeps an auto x range *relative* to the previous
+    data, which leaves a chart whose x values move as the seeker's do showing the wrong
+    stretch.)"""
+    xs = [c for c, _ in evaluations] + list(bracket or ())
+    if not xs:
+        return (0.0, 1.0)
+    lo, hi = min(xs), max(xs)
+    pad = max(0.05 * (hi - lo), 0.05)
+    return (lo - pad, hi + pad)
+
+
+def seeker_scales(
+    evaluations: Sequence[tuple[float, float]], bracket: tuple[float, float] | None = None
+) -> dict[str, up.Scale]:
     return {
-        "x": up.Scale(time=False),
+        "x": up.Scale(time=False, auto=False, range=seeker_x_range(evaluations, bracket)),
         "y": up.Scale(auto=False, range=seeker_range(evaluations)),
     }
 
 
-def seeker_chart(gui: Any) -> Any:
+def seeker_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
     return gui.add_uplot(
         data=nonempty((np.zeros(0),) * 4),
         series=(
@@ -274,7 +299,7 @@ def seeker_chart(gui: Any) -> Any:
     )
 
 
-def trend_chart(gui: Any) -> Any:
+def trend_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
     """A user's setpoints across sessions: velocity against date."""
     return gui.add_uplot(
         data=nonempty((np.zeros(0),) * 2),

@@ -5,9 +5,9 @@ the torque and whose colour says its sign."""
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
+import viser
 
 SHAFT_Z = 0.62  # m, height of the shaft axis
 CRANK = 0.22  # m, crank radius
@@ -23,7 +23,7 @@ def about_y(angle: float) -> tuple[float, float, float, float]:
 
 
 class MachineScene:
-    def __init__(self, scene: Any, max_torque: float) -> None:
+    def __init__(self, scene: viser.SceneApi, max_torque: float) -> None:
         self.full_scale = min(max_torque, FULL_SCALE)
         scene.add_grid("/floor", width=2.0, height=2.0, cell_size=0.1, plane="xy")
         scene.add_box(
@@ -102,7 +102,7 @@ class MachineScene:
         self._bar(self.motor_bar, u, MOTOR_POS if u >= 0 else MOTOR_NEG)
         self._bar(self.user_bar, tau, USER_COLOR)
 
-    def _bar(self, bar: Any, torque: float, color: tuple[int, int, int]) -> None:
+    def _bar(self, bar: viser.BoxHandle, torque: float, color: tuple[int, int, int]) -> None:
         h = max(min(abs(torque) / self.full_scale, 1.0), 0.0) * BAR_HEIGHT
         bar.scale = (1.0, 1.0, max(h, 1e-3))
         bar.position = (bar.position[0], 0.0, h / 2)

@@ -7,40 +7,39 @@ import asyncio
 import json
 import math
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query
 from fastapi.responses import Response, StreamingResponse
 
-from server.auth import Trainer, Viewer
-from server.schemas import MAX_ID, Id, SessionOut, SessionStart, TelemetryOut
-from sessions.store import EventRecord, Page, SessionRecord
+from server.api.deps import MachineDep, StoreDep, Trainer, Viewer
+from server.api.schemas import MAX_ID, Id, SessionOut, SessionStart, TelemetryOut
+from sessions.codes import SessionStatus
+from sessions.store import EventRecord, Page, SessionRecord, Store
 from sessions.telemetry import NAMES, UNITS
 
 router = APIRouter(prefix="/api/v1/sessions", tags=["sessions"])
-Status = Literal["running", "completed", "stopped", "aborted", "faulted"]
 
 
 @router.post(
     "", response_model=SessionRecord, status_code=201, summary="Start a session",
     responses={409: {"description": "a session is running, or the machine must be reset"}},
 )  # fmt: skip
-async def start_session(request: Request, body: SessionStart, account: Trainer) -> SessionRecord:
-    return await request.app.state.runtime.control.start(body, account.id)
+async def start_session(body: SessionStart, machine: MachineDep, account: Trainer) -> SessionRecord:
+    return await machine.start(body, account.id)
 
 
 @router.get("", response_model=Page[SessionRecord], summary="Sessions, newest first")
 async def list_sessions(
-    request: Request,
+    store: StoreDep,
     _: Viewer,
     user_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
-    status: Annotated[list[Status] | None, Query()] = None,
+    status: Annotated[list[SessionStatus] | None, Query()] = None,
     since: datetime | None = None,
     until: datetime | None = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
 ) -> Page[SessionRecord]:
-    store = request.app.state.runtime.store
     return await asyncio.to_thread(
         lambda: store.sessions.list(
             user_id=user_id, status=status, since=since, until=until, limit=limit, offset=offset
@@ -49,24 +48,26 @@ async def list_sessions(
 
 
 @router.get("/{session_id}", response_model=SessionOut, summary="Summary, evaluations, live state")
-async def get_session(request: Request, session_id: Id, _: Viewer) -> SessionOut:
-    runtime = request.app.state.runtime
-    detail = await asyncio.to_thread(runtime.store.sessions.detail, session_id)
+async def get_session(
+    session_id: Id, store: StoreDep, machine: MachineDep, _: Viewer
+) -> SessionOut:
+    detail = await asyncio.to_thread(store.sessions.detail, session_id)
     return SessionOut(
         session=detail.session,
         evaluations=detail.evaluations,
         events=detail.events,
-        live=runtime.control.live(session_id),
+        live=machine.live(session_id),
     )
 
 
 @router.post(
     "/{session_id}/stop", status_code=202, summary="Stop a running session (torque ramped out)"
 )
-async def stop_session(request: Request, session_id: Id, _: Trainer) -> dict[str, str]:
-    runtime = request.app.state.runtime
-    await asyncio.to_thread(runtime.store.sessions.get, session_id)  # 404 if unknown
-    runtime.control.stop(session_id)
+async def stop_session(
+    session_id: Id, store: StoreDep, machine: MachineDep, _: Trainer
+) -> dict[str, str]:
+    await asyncio.to_thread(store.sessions.get, session_id)  # 404 if unknown
+    machine.stop(session_id)
     return {"status": "stopping"}
 
 
@@ -74,9 +75,8 @@ async def stop_session(request: Request, session_id: Id, _: Trainer) -> dict[str
     "/{session_id}/events", response_model=list[EventRecord], summary="Faults, e-stops, limits"
 )
 async def session_events(
-    request: Request, session_id: Id, _: Viewer, kind: str | None = None
+    session_id: Id, store: StoreDep, _: Viewer, kind: str | None = None
 ) -> list[EventRecord]:
-    store = request.app.state.runtime.store
     return await asyncio.to_thread(lambda: store.sessions.events(session_id, kind=kind))
 
 
@@ -85,33 +85,35 @@ async def session_events(
     summary="Telemetry as JSON, decimated to a point budget (min/max kept)",
 )  # fmt: skip
 async def telemetry(
-    request: Request,
     session_id: Id,
+    store: StoreDep,
     _: Viewer,
     points: Annotated[int, Query(ge=10, le=200_000)] = 2000,
     start: Annotated[float | None, Query(ge=0, allow_inf_nan=False)] = None,
     end: Annotated[float | None, Query(ge=0, allow_inf_nan=False)] = None,
 ) -> Response:
-    store = request.app.state.runtime.store
-
-    def build() -> bytes:
-        data = store.telemetry.load(session_id, start=start, end=end, points=points)
-        cols = data.columns
-        body = {
-            "session_id": session_id,
-            "samples": data.samples,
-            "decimated": data.decimated,
-            "units": dict(UNITS),
-            # NaN (a stop ramp has no reference) becomes null
-            "channels": {
-                name: [x if math.isfinite(x) else None for x in cols[i].tolist()]
-                for i, name in enumerate(NAMES)
-            },
-        }
-        return json.dumps(body, separators=(",", ":")).encode()
-
+    body = await asyncio.to_thread(_telemetry_json, store, session_id, start, end, points)
     # built here (not validated again by the response model, which documents it)
-    return Response(await asyncio.to_thread(build), media_type="application/json")
+    return Response(body, media_type="application/json")
+
+
+def _telemetry_json(
+    store: Store, session_id: int, start: float | None, end: float | None, points: int
+) -> bytes:
+    data = store.telemetry.load(session_id, start=start, end=end, points=points)
+    cols = data.columns
+    body = {
+        "session_id": session_id,
+        "samples": data.samples,
+        "decimated": data.decimated,
+        "units": dict(UNITS),
+        # NaN (a stop ramp has no reference) becomes null
+        "channels": {
+            name: [x if math.isfinite(x) else None for x in cols[i].tolist()]
+            for i, name in enumerate(NAMES)
+        },
+    }
+    return json.dumps(body, separators=(",", ":")).encode()
 
 
 @router.get(
@@ -119,13 +121,12 @@ async def telemetry(
     response_class=StreamingResponse,
 )  # fmt: skip
 async def telemetry_csv(
-    request: Request,
     session_id: Id,
+    store: StoreDep,
     _: Viewer,
     start: Annotated[float | None, Query(ge=0, allow_inf_nan=False)] = None,
     end: Annotated[float | None, Query(ge=0, allow_inf_nan=False)] = None,
 ) -> StreamingResponse:
-    store = request.app.state.runtime.store
     await asyncio.to_thread(store.sessions.get, session_id)  # 404 before streaming starts
     pieces = store.telemetry.export_csv(session_id, start=start, end=end)
     return StreamingResponse(

@@ -1,12 +1,12 @@
 """The machine a session drives: one lifecycle and read → update → write cycle (:mod:`.base`),
-three implementations behind it: the simulator (:mod:`.sim`), an ODrive over its ASCII protocol
-(:mod:`.odrive`), and an ODrive emulated on a pseudo-terminal for the tests and the demo
-(:mod:`.emulator`)."""
+described by plain data (:mod:`.spec`), with two backends behind it: the simulator (:mod:`.sim`)
+and an ODrive over its ASCII protocol (:mod:`.odrive`, with the emulated ODrive on a
+pseudo-terminal that the tests and the demo drive it against)."""
 
 from __future__ import annotations
 
 from sessions.machine.base import Machine, MachineError, MachineState
-from sessions.machine.spec import MachineSpec
+from sessions.machine.spec import MachineSpec, SimFault, check_controller
 
 
 def make_machine(spec: MachineSpec) -> Machine:
@@ -17,7 +17,15 @@ def make_machine(spec: MachineSpec) -> Machine:
         return OdriveMachine(spec)
     from sessions.machine.sim import SimMachine
 
-    return SimMachine()
+    return SimMachine(spec.sim_fault)
 
 
-__all__ = ["Machine", "MachineError", "MachineSpec", "MachineState", "make_machine"]
+__all__ = [
+    "Machine",
+    "MachineError",
+    "MachineSpec",
+    "MachineState",
+    "SimFault",
+    "check_controller",
+    "make_machine",
+]

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from typing import ClassVar
 
 from sessions.config import SessionConfig
+from sessions.machine.spec import check_controller
 
 
 class MachineState(enum.IntEnum):
@@ -57,6 +58,10 @@ class Machine:
 
     kind: ClassVar[str] = "machine"
     has_torque_sensor: ClassVar[bool] = False
+    # the plant moves on its own clock between writes (a real drive holds the last torque):
+    # a period the worker misses is real time the loop must account for. A simulator that
+    # advances one period per write is not free-running.
+    free_running: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self.state = MachineState.UNCONNECTED
@@ -74,8 +79,7 @@ class Machine:
     def arm(self, cfg: SessionConfig) -> None:
         """Prepare for a session: limits set, drive enabled, zero torque."""
         self._require((MachineState.CONNECTED, MachineState.DISARMED), "arm")
-        if cfg.controller.kind == "measured" and not self.has_torque_sensor:
-            raise ValueError(f"the {self.kind} machine has no torque sensor: use controller 'rise'")
+        check_controller(self.kind, self.has_torque_sensor, cfg.controller.kind)
         self.max_torque = cfg.machine.max_torque
         self.last_command = 0.0
         self._guard(lambda: self._arm(cfg))

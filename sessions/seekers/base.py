@@ -42,13 +42,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sessions.codes import DELAY, DONE, MEASURING, PHASES, SETTLING
 from sessions.config import SeekerConfig
 from sessions.filters import TrajectoryFilter
 from sessions.seekers.averaging import PowerAverager
 from sessions.seekers.regression import Rows
 
-DELAY, SETTLING, MEASURING, DONE = 0, 1, 2, 3
-PHASES = ("delay", "settling", "measuring", "done")
 HEADROOM = 0.95  # targets stay below this fraction of the machine's velocity limit
 EXPAND_FRACTION = 0.25  # one expansion step, as a fraction of the initial bracket's width
 

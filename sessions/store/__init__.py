@@ -1,4 +1,4 @@
-"""The store: accounts, users, sessions with their full history, per-user setpoints and
+"""The store: accounts, users, sessions with everything they recorded, per-user setpoints and
 full-rate telemetry, in SQLite (default) or PostgreSQL, through SQLAlchemy 2 and Alembic.
 
 All SQL lives in this package. Callers use :class:`Store` (or :func:`open_server_store` on

@@ -32,9 +32,7 @@ from sqlalchemy import (
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-ROLES = ("admin", "trainer", "viewer")
-TOKEN_KINDS = ("cookie", "bearer")
-STATUSES = ("running", "completed", "stopped", "aborted", "faulted")
+from sessions.codes import ROLES, STATUSES, TOKEN_KINDS
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",

@@ -28,14 +28,15 @@ from typing import Any
 import numpy as np
 from sqlalchemy import func, insert, select, update
 
+from sessions.codes import SessionStatus
 from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import ConflictError, StoreError, StoreValueError
-from sessions.store.history import SessionRepository, evaluation_row, event_row, require_running
 from sessions.store.models import Event, ExerciseSession, SeekerEvaluation, TelemetryChunk
 from sessions.store.records import SessionRecord
+from sessions.store.sessions import SessionRepository, evaluation_row, event_row, require_running
 from sessions.store.timeseries import chunk_row, chunk_starts, columns_of
-from sessions.summary import SessionStatus, SessionSummary
+from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX, WIDTH
 
 log = logging.getLogger(__name__)

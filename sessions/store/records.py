@@ -5,16 +5,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, Generic, Literal, TypeVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from sessions.codes import Role, SessionStatus, TokenKind
 from sessions.config import SessionConfig
-from sessions.summary import SessionStatus, SessionSummary
+from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX
 
-Role = Literal["admin", "trainer", "viewer"]
 T = TypeVar("T")
 
 
@@ -35,7 +35,7 @@ class TokenRecord(Record):
 
     id: int
     account_id: int
-    kind: Literal["cookie", "bearer"]
+    kind: TokenKind
     created_at: datetime
     expires_at: datetime
     revoked: bool

@@ -13,8 +13,8 @@ from sessions.store import migrate
 from sessions.store.accounts import AccountRepository
 from sessions.store.database import Database, database_url, display_url
 from sessions.store.errors import StoreError
-from sessions.store.history import RESTART_REASON, SessionRepository
 from sessions.store.recorder import SessionRecorder
+from sessions.store.sessions import RESTART_REASON, SessionRepository
 from sessions.store.setpoints import SetpointRepository
 from sessions.store.timeseries import TelemetryRepository
 from sessions.store.tokens import TokenRepository

@@ -1,15 +1,25 @@
 """The live machine's real-time side: a worker process runs the engine's loop at its rate
-against a machine (:mod:`sessions.machine`), publishes full-rate telemetry into a shared-memory
-ring (:mod:`.ring`), events over a non-blocking channel (:mod:`.channel`, :mod:`.messages`) and
-its loop timing (:mod:`.timing`); the parent drives it through :class:`Worker` (:mod:`.handle`).
+against a machine (:mod:`sessions.machine`); the parent drives it through :class:`Worker`.
 
-Data path: loop (:mod:`sessions.loop`) → worker (:mod:`.process`) → handle → server.
+    process     the worker's life: connect, wait for commands, run sessions, exit safe
+    cycle       one session, one period at a time: read → step → supervise → write → publish
+    pacer       the deadlines (sleep, then spin), the OS's real-time settings, loop timing
+    supervisor  the safety decisions and the controlled stop
+    ring        full-rate records in shared memory (one writer, readers anywhere)
+    messages    commands and events: plain frozen data across the process boundary
+    channel     the worker's non-blocking event pipe
+    handle      the parent's side: :class:`Worker`, its liveness check
+    options     how the worker runs (:class:`WorkerOptions`)
+
+Data path: loop (:mod:`sessions.loop`) → worker (:mod:`.cycle`) → ring and events → handle →
+server.
 """
 
 from __future__ import annotations
 
 from sessions.worker.handle import Worker, WorkerError, WorkerStatus
 from sessions.worker.messages import (
+    CandidateMeasured,
     EStopped,
     Event,
     Faulted,
@@ -17,7 +27,6 @@ from sessions.worker.messages import (
     RealtimeInfo,
     Rejected,
     ResetDone,
-    SeekerEvaluation,
     SessionEnded,
     SessionStarted,
     Stopping,
@@ -27,11 +36,12 @@ from sessions.worker.messages import (
     WorkerLost,
     WorkerReady,
 )
-from sessions.worker.process import WorkerOptions
+from sessions.worker.options import WorkerOptions
 from sessions.worker.ring import COLUMNS, RingBatch, RingInfo, RingReader
 
 __all__ = [
     "COLUMNS",
+    "CandidateMeasured",
     "EStopped",
     "Event",
     "Faulted",
@@ -42,7 +52,6 @@ __all__ = [
     "RingBatch",
     "RingInfo",
     "RingReader",
-    "SeekerEvaluation",
     "SessionEnded",
     "SessionStarted",
     "Stopping",

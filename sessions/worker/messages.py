@@ -2,7 +2,11 @@
 
 Commands go parent → worker over a pipe; events come back worker → parent over a non-blocking
 channel (:mod:`sessions.worker.channel`). Every event has a ``kind`` and ``to_dict()`` (JSON-ready:
-what the web server forwards to the dashboard). Sessions carry the caller's ``session_id``.
+what the web server forwards to the dashboard).
+
+Sessions carry two identifiers: ``session_id``, the caller's tag for the session (a string the
+caller chooses: the server passes its database id), and ``session``, the worker's own session
+number (the ring's ``session`` column). They are never compared with each other.
 """
 
 from __future__ import annotations
@@ -12,17 +16,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
+from sessions.codes import EndStatus, WorkerStateName
 from sessions.config import SessionConfig
 from sessions.summary import SessionSummary
-
-WorkerStateName = Literal[
-    "starting", "idle", "running", "stopping", "estopped", "faulted", "closed", "lost"
-]
-# index = the state code in the ring header (sessions.worker.ring.STATE_*)
-STATES: tuple[WorkerStateName, ...] = (
-    "starting", "idle", "running", "stopping", "estopped", "faulted", "closed"
-)  # fmt: skip
-EndStatus = Literal["completed", "stopped", "aborted", "faulted"]
 
 
 # -- commands (parent → worker) -----------------------------------------------------------------
@@ -34,9 +30,11 @@ class StartSession:
 
 @dataclass(frozen=True)
 class Stop:
-    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``."""
+    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``;
+    ``reason`` says who asked (default: the operator)."""
 
     immediate: bool = False
+    reason: str | None = None
 
 
 @dataclass(frozen=True)
@@ -46,7 +44,11 @@ class EStop:
 
 @dataclass(frozen=True)
 class Reset:
-    """Clear a latched e-stop or fault. Never starts anything."""
+    """Clear a latched e-stop or fault. Never starts anything. ``sent_ns``: when it was asked
+    (CLOCK_MONOTONIC): a reset asked before the e-stop it would clear is refused (the e-stop
+    line overtakes the command pipe, a reset queued there must not undo it)."""
+
+    sent_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -113,7 +115,7 @@ class WorkerReady(Event):
 @dataclass(frozen=True)
 class SessionStarted(Event):
     kind: ClassVar[str] = "session_started"
-    session_id: str
+    session_id: str  # the caller's tag
     session: int  # the worker's session number (ring column "session")
     first_seq: int  # ring sequence number of the session's first record
     rate_hz: float
@@ -121,7 +123,10 @@ class SessionStarted(Event):
 
 
 @dataclass(frozen=True)
-class SeekerEvaluation(Event):
+class CandidateMeasured(Event):
+    """The seeker has measured one candidate (not to be confused with the store's table of
+    evaluations, which records these)."""
+
     kind: ClassVar[str] = "evaluation"
     session_id: str
     session_t: float  # session time at the end of the measurement, s

@@ -20,6 +20,9 @@ against a torn record elsewhere.)
 
 The header also carries the worker's heartbeat (monotonic ns, written every cycle and every
 idle poll), its state code and session number: the parent's liveness check reads them here.
+And one word goes the other way: ``H_ESTOP``, an e-stop request any process holding the ring's
+name may stamp (:class:`EStopLine`); the worker looks at it every period and latches on a new
+stamp, whatever its command pipe holds.
 
 The parent creates the block (:meth:`TelemetryRing.create`, registered with multiprocessing's
 resource tracker so it is removed even if the parent is killed) and unlinks it; the worker and
@@ -38,38 +41,21 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from sessions.telemetry import NAMES, UNITS
+from sessions.telemetry import RECORD_INDEX, RECORD_NAMES, RECORD_UNITS, RECORD_WIDTH
 
 MAGIC = 0x3147_4E49_5245_4B45  # "EKERING1"
 VERSION = 1
 HEADER_WORDS = 16
 H_MAGIC, H_VERSION, H_CAPACITY, H_WIDTH, H_HEAD, H_HEARTBEAT = 0, 1, 2, 3, 4, 5
 H_STATE, H_SESSION, H_PID, H_CYCLES = 6, 7, 8, 9
+H_ESTOP = 10  # the newest e-stop request: a monotonic-ns stamp any process may write
 
-# Worker state codes in the header (names in sessions.worker.messages.STATES).
-STATE_STARTING, STATE_IDLE, STATE_RUNNING, STATE_STOPPING = 0, 1, 2, 3
-STATE_ESTOPPED, STATE_FAULTED, STATE_CLOSED = 4, 5, 6
-
-# Flags column bits: the engine's limit flags (sessions.limits) plus the worker's own.
-FLAG_TORQUE_LIMIT = 1
-FLAG_VELOCITY_LIMIT = 2
-FLAG_STOPPING = 4
-FLAG_ESTOP = 8
-FLAG_FAULT = 16
-FLAG_PASSIVITY = 32
-
-EXTRA: tuple[tuple[str, str, str], ...] = (
-    ("u_out", "N*m", "torque written to the machine (the loop's u, or the stop ramp's, or 0)"),
-    ("phase", "", "seeker phase: 0 delay, 1 settling, 2 measuring, 3 done; -1 stopping"),
-    ("flags", "", "1 torque limit, 2 velocity limit, 4 stopping, 8 e-stop, 16 fault, 32 passivity"),
-    ("late", "us", "lateness of this cycle's wake-up behind its deadline"),
-    ("mono", "s", "monotonic clock when the cycle started (CLOCK_MONOTONIC, all processes)"),
-    ("session", "", "the worker's session number"),
-)
-COLUMNS: tuple[str, ...] = NAMES + tuple(c[0] for c in EXTRA)
-COLUMN_UNITS: dict[str, str] = {**UNITS, **{c[0]: c[1] for c in EXTRA}}
-INDEX: dict[str, int] = {name: i for i, name in enumerate(COLUMNS)}
-WIDTH = len(COLUMNS)
+# A record's columns are the telemetry's (sessions.telemetry); the worker state codes in the
+# header and the bits of the flags column are sessions.codes'.
+COLUMNS: tuple[str, ...] = RECORD_NAMES
+COLUMN_UNITS: dict[str, str] = RECORD_UNITS
+INDEX: dict[str, int] = RECORD_INDEX
+WIDTH = RECORD_WIDTH
 
 
 def _layout(capacity: int, width: int) -> tuple[int, int, int]:
@@ -166,6 +152,30 @@ class TelemetryRing:
         finally:
             with contextlib.suppress(FileNotFoundError):
                 self.shm.unlink()
+
+
+def stamp_estop(hdr: np.ndarray) -> None:
+    """Ask for an e-stop through a writable header (one aligned 8-byte store: atomic)."""
+    hdr[H_ESTOP] = time.monotonic_ns()
+
+
+class EStopLine:
+    """Another process's line to the worker's e-stop: the ring's header, mapped writable,
+    used for nothing but :meth:`trigger`."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.mm = _attach(name, writable=True)
+        self.hdr = np.ndarray((HEADER_WORDS,), dtype=np.int64, buffer=self.mm)
+        if int(self.hdr[H_MAGIC]) != MAGIC:
+            raise ValueError("not an ergoseek telemetry ring")
+
+    def trigger(self) -> None:
+        stamp_estop(self.hdr)
+
+    def close(self) -> None:
+        del self.hdr
+        self.mm.close()
 
 
 class RingWriter:

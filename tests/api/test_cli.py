@@ -12,22 +12,8 @@ from pathlib import Path
 import httpx
 
 from sessions.store import open_store
-from tests.server_support import ROOT, free_port
-
-
-def ergoseek(
-    *args: str, stdin: str = "", env: dict[str, str] | None = None
-) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "server", *args],
-        input=stdin,
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, **(env or {})},
-        timeout=60,
-        check=False,
-    )
+from testing.cli import ROOT, ergoseek
+from testing.server import free_port
 
 
 def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:
@@ -40,12 +26,12 @@ def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:
         "trainer",
         "--database-url",
         url,
-        stdin="s3cret-pass\n",
+        stdin="s3cret pass for the coach\n",
     )
     assert ok.returncode == 0, ok.stderr
     assert "created trainer account 'coach'" in ok.stdout
     with open_store(url) as store:
-        assert store.accounts.authenticate("coach", "s3cret-pass").role == "trainer"
+        assert store.accounts.authenticate("coach", "s3cret pass for the coach").role == "trainer"
     again = ergoseek(
         "account",
         "create",
@@ -54,7 +40,7 @@ def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:
         "viewer",
         "--database-url",
         url,
-        stdin="other-pass\n",
+        stdin="another pass for the coach\n",
     )
     assert again.returncode == 2 and "taken" in again.stderr and "Traceback" not in again.stderr
     short = ergoseek(

@@ -10,7 +10,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from tests.server_support import start_server, worker_pid
+from testing.server import start_server, worker_pid
 
 
 def alive(pid: int) -> bool:

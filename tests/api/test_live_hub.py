@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from server.live import BACKLOG_SECONDS, LiveHub, serve_subscription
-from sessions.worker.ring import FLAG_ESTOP
+from server.service.live import BACKLOG_SECONDS, LiveHub, serve_subscription
+from sessions.codes import FLAG_ESTOP
 from sessions.worker.ring import INDEX as RING
 
 RATE = 1000.0

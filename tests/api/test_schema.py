@@ -13,7 +13,7 @@ import schemathesis
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from tests.server_support import ServerProcess, start_server
+from testing.server import ServerProcess, start_server
 
 EXAMPLES = 15
 STATUS: list[int] = []

@@ -11,15 +11,9 @@ from websockets.sync.client import connect
 
 from sessions.config import UserConfig
 from sessions.people import SimulatedUser
-from tests.server_support import ServerProcess, start_server
+from testing.server import ServerProcess, start_server
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:
-    with start_server(tmp_path_factory.mktemp("srv")) as srv:
-        yield srv
 
 
 def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from sessions.telemetry import csv_header
+from testing.cli import ergoseek
 
 SCENARIO = """
 duration = 12.0
@@ -26,20 +26,8 @@ objective = "surrogate"
 """
 
 
-def ergoseek(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "server", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=120,
-        check=False,
-    )
-
-
-def test_simulate_json_and_csv(tmp_path: Path) -> None:
-    scenario = tmp_path / "s.toml"
-    scenario.write_text(SCENARIO)
+def test_simulate_json_and_csv(tmp_path: Path, scenario_file: Callable[..., Path]) -> None:
+    scenario = scenario_file(SCENARIO)
     out = tmp_path / "t.csv"
     proc = ergoseek("simulate", str(scenario), "--json", "--csv", str(out))
     assert proc.returncode == 0, proc.stderr
@@ -76,9 +64,10 @@ def test_simulate_json_and_csv(tmp_path: Path) -> None:
         ("[seeker]\nexpand = true", "seeker.expand_limit"),
     ],
 )
-def test_bad_scenarios_exit_2_naming_the_key(tmp_path: Path, text: str, key: str) -> None:
-    scenario = tmp_path / "bad.toml"
-    scenario.write_text(text)
+def test_bad_scenarios_exit_2_naming_the_key(
+    scenario_file: Callable[..., Path], text: str, key: str
+) -> None:
+    scenario = scenario_file(text, "bad.toml")
     proc = ergoseek("simulate", str(scenario))
     assert proc.returncode == 2
     assert key in proc.stderr

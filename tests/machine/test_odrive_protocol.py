@@ -16,14 +16,16 @@ import pytest
 import serial
 
 from sessions.config import parse_session_config
-from sessions.machine import MachineSpec, MachineState, make_machine
-from sessions.machine.emulator import EmulatorConfig, EmulatorProcess, OdriveEmulator
-from sessions.machine.protocol import (
+from sessions.machine import MachineState, make_machine
+from sessions.machine.odrive.emulator import Device, EmulatorConfig, EmulatorProcess
+from sessions.machine.odrive.emulator.ascii import AsciiProtocol
+from sessions.machine.odrive.protocol import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     checksum,
     describe_axis_error,
 )
+from testing.live import odrive
 
 GEAR, DIRECTION = 4.0, -1
 
@@ -89,7 +91,7 @@ def test_raw_conversation_follows_the_firmware(port):
 
 def test_backend_arms_the_device_and_converts_units(emu):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    spec = MachineSpec(kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION)
+    spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION)
     m = make_machine(spec)
     m.connect()
     assert m.firmware == (0, 5, 6)
@@ -119,9 +121,7 @@ def test_backend_arms_the_device_and_converts_units(emu):
 
 def test_backend_writes_the_device_limits(emu, port):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    m = make_machine(
-        MachineSpec(kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION)
-    )
+    m = make_machine(odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION))
     m.connect()
     m.arm(cfg)
     m.close()  # close idles the axis but leaves the limits on the device
@@ -140,82 +140,73 @@ def test_backend_writes_the_device_limits(emu, port):
 # -- the emulated device on a synthetic clock (no I/O timing involved) ----------------------
 
 
-def _device(**rig) -> tuple[OdriveEmulator, float]:
-    emu = OdriveEmulator(EmulatorConfig(**rig))
+def _device(**rig) -> tuple[Device, float]:
+    emu = Device(EmulatorConfig(**rig))
     return emu, emu.t0
 
 
-def _say(emu: OdriveEmulator, t: float, line: bytes) -> None:
-    emu._catch_up(t)
-    emu._receive(line + b"\n", t)
+def _say(emu: Device, t: float, line: bytes) -> None:
+    emu.catch_up(t)
+    AsciiProtocol(emu).process_line(line, t)
 
 
 def test_watchdog_expires_on_the_physics_clock():
     emu, t0 = _device()
-    try:
-        _say(emu, t0 + 0.001, b"w axis0.config.watchdog_timeout 0.05")
-        _say(emu, t0 + 0.002, b"u 0")
-        _say(emu, t0 + 0.002, b"w axis0.config.enable_watchdog 1")
-        _say(emu, t0 + 0.003, b"w axis0.requested_state 8")
-        _say(emu, t0 + 0.004, b"c 0 0.3")
-        assert emu.rig_axis.state.value == 8 and emu.rig_axis.applied == 0.0
-        emu._catch_up(t0 + 0.010)
-        assert emu.rig_axis.applied == pytest.approx(0.3, rel=1e-6)
-        last_feed = t0 + 0.040
-        _say(emu, last_feed, b"c 0 0.3")
-        emu._catch_up(t0 + 0.2)
-        ax = emu.rig_axis
-        assert ax.error.value == AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-        assert ax.state.value == 1 and ax.applied == 0.0
-        assert ax.tripped_at is not None
-        assert 0.05 < ax.tripped_at - last_feed <= 0.05 + emu.h + 1e-9
-        # the axis refuses closed loop until the error is cleared, and trips again if unfed
-        _say(emu, t0 + 0.21, b"w axis0.requested_state 8")
-        assert ax.state.value == 1
-        _say(emu, t0 + 0.22, b"sc")
-        assert ax.error.value == 0
-        emu._catch_up(t0 + 0.23)
-        assert ax.error.value == AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-    finally:
-        emu.close()
+    _say(emu, t0 + 0.001, b"w axis0.config.watchdog_timeout 0.05")
+    _say(emu, t0 + 0.002, b"u 0")
+    _say(emu, t0 + 0.002, b"w axis0.config.enable_watchdog 1")
+    _say(emu, t0 + 0.003, b"w axis0.requested_state 8")
+    _say(emu, t0 + 0.004, b"c 0 0.3")
+    assert emu.rig_axis.state.value == 8 and emu.rig_axis.applied == 0.0
+    emu.catch_up(t0 + 0.010)
+    assert emu.rig_axis.applied == pytest.approx(0.3, rel=1e-6)
+    last_feed = t0 + 0.040
+    _say(emu, last_feed, b"c 0 0.3")
+    emu.catch_up(t0 + 0.2)
+    ax = emu.rig_axis
+    assert ax.error.value == AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+    assert ax.state.value == 1 and ax.applied == 0.0
+    assert ax.tripped_at is not None
+    assert 0.05 < ax.tripped_at - last_feed <= 0.05 + emu.h + 1e-9
+    # the axis refuses closed loop until the error is cleared, and trips again if unfed
+    _say(emu, t0 + 0.21, b"w axis0.requested_state 8")
+    assert ax.state.value == 1
+    _say(emu, t0 + 0.22, b"sc")
+    assert ax.error.value == 0
+    emu.catch_up(t0 + 0.23)
+    assert ax.error.value == AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 
 
 def test_torque_mode_velocity_limiter_and_overspeed():
     emu, t0 = _device()
-    try:
-        ax = emu.rig_axis
-        _say(emu, t0 + 0.001, b"w axis0.controller.config.vel_limit 1.0")
-        _say(emu, t0 + 0.001, b"w axis0.controller.config.vel_gain 2.0")
-        _say(emu, t0 + 0.001, b"w axis0.motor.config.torque_lim 5.0")
-        _say(emu, t0 + 0.002, b"w axis0.requested_state 8")
-        emu.plant.w = 0.8 * 2 * math.pi  # 0.8 turn/s
-        _say(emu, t0 + 0.002, b"c 0 4.0")
-        emu._catch_up(t0 + 0.002 + 1.5 * emu.h)
-        # limiter: at most (vel_limit - v)·vel_gain = (1.0 - 0.8)·2 = 0.4 N·m forward
-        assert ax.applied == pytest.approx(0.4, abs=0.02)
-        _say(emu, t0 + 0.01, b"c 0 -9.0")
-        emu._catch_up(t0 + 0.01 + 1.5 * emu.h)
-        v = emu.plant.w / (2 * math.pi)  # braking is limited too: ≥ (-vel_limit - v)·vel_gain
-        assert ax.applied == pytest.approx((-1.0 - v) * 2.0, abs=0.05)
-        _say(emu, t0 + 0.011, b"w axis0.controller.config.vel_gain 100")
-        emu._catch_up(t0 + 0.011 + 1.5 * emu.h)
-        assert ax.applied == pytest.approx(-5.0)  # now torque_lim binds
-        emu.plant.w = 1.3 * 2 * math.pi  # above vel_limit_tolerance (1.2) × vel_limit
-        emu._catch_up(t0 + 0.02)
-        assert ax.state.value == 1 and ax.applied == 0.0
-        assert ax.error.value & AXIS_ERROR_CONTROLLER_FAILED
-        assert ax.ctrl_error.value == 1  # OVERSPEED
-    finally:
-        emu.close()
+    ax = emu.rig_axis
+    _say(emu, t0 + 0.001, b"w axis0.controller.config.vel_limit 1.0")
+    _say(emu, t0 + 0.001, b"w axis0.controller.config.vel_gain 2.0")
+    _say(emu, t0 + 0.001, b"w axis0.motor.config.torque_lim 5.0")
+    _say(emu, t0 + 0.002, b"w axis0.requested_state 8")
+    emu.plant.w = 0.8 * 2 * math.pi  # 0.8 turn/s
+    _say(emu, t0 + 0.002, b"c 0 4.0")
+    emu.catch_up(t0 + 0.002 + 1.5 * emu.h)
+    # limiter: at most (vel_limit - v)·vel_gain = (1.0 - 0.8)·2 = 0.4 N·m forward
+    assert ax.applied == pytest.approx(0.4, abs=0.02)
+    _say(emu, t0 + 0.01, b"c 0 -9.0")
+    emu.catch_up(t0 + 0.01 + 1.5 * emu.h)
+    v = emu.plant.w / (2 * math.pi)  # braking is limited too: ≥ (-vel_limit - v)·vel_gain
+    assert ax.applied == pytest.approx((-1.0 - v) * 2.0, abs=0.05)
+    _say(emu, t0 + 0.011, b"w axis0.controller.config.vel_gain 100")
+    emu.catch_up(t0 + 0.011 + 1.5 * emu.h)
+    assert ax.applied == pytest.approx(-5.0)  # now torque_lim binds
+    emu.plant.w = 1.3 * 2 * math.pi  # above vel_limit_tolerance (1.2) × vel_limit
+    emu.catch_up(t0 + 0.02)
+    assert ax.state.value == 1 and ax.applied == 0.0
+    assert ax.error.value & AXIS_ERROR_CONTROLLER_FAILED
+    assert ax.ctrl_error.value == 1  # OVERSPEED
 
 
 def test_the_person_pushes_only_while_the_drive_holds_the_handle():
     emu, t0 = _device()
-    try:
-        emu._catch_up(t0 + 0.5)
-        assert emu.plant.w == 0.0 and not emu.engaged
-        _say(emu, t0 + 0.5, b"w axis0.requested_state 8")
-        emu._catch_up(t0 + 0.6)
-        assert emu.engaged and emu.plant.w > 0.5  # τ0/J = 30 rad/s² from rest
-    finally:
-        emu.close()
+    emu.catch_up(t0 + 0.5)
+    assert emu.plant.w == 0.0 and not emu.engaged
+    _say(emu, t0 + 0.5, b"w axis0.requested_state 8")
+    emu.catch_up(t0 + 0.6)
+    assert emu.engaged and emu.plant.w > 0.5  # τ0/J = 30 rad/s² from rest

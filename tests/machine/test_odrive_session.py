@@ -24,13 +24,12 @@ import time
 import numpy as np
 import pytest
 
-from sessions.machine import MachineSpec
-from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
-from sessions.machine.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
+from sessions.machine.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 from sessions.people import SimulatedUser
 from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerOptions
-from tests.live_support import follow, scenario, wait_for
+from testing.live import follow, odrive, scenario, wait_for
 
 GEAR, DIRECTION = 4.0, -1
 
@@ -47,10 +46,8 @@ def rig():
 def spec(emu, **kw):
     # generous I/O limits: host and device share a loaded VM, where a pty's kernel worker can
     # stall for tens of ms; the defaults (20 ms reply, 50 ms watchdog) are for hardware
-    base = {"timeout": 0.2, "watchdog_timeout": 0.5}
-    return MachineSpec(
-        kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION, **{**base, **kw}
-    )
+    base = {"reply_timeout": 0.2, "watchdog_timeout": 0.5}
+    return odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION, **{**base, **kw})
 
 
 def test_seeking_through_the_odrive_reaches_the_simulated_optimum(rig):
@@ -91,7 +88,7 @@ def test_sigkill_of_the_worker_trips_the_device_watchdog(rig):
     cfg, emu = rig
     timeout = 0.1  # the 50 ms default is checked on the device's own clock in
     # test_odrive_protocol; here the link must not fault on a loaded VM before the kill
-    with Worker(spec(emu, watchdog_timeout=timeout, timeout=0.08), WorkerOptions()) as worker:
+    with Worker(spec(emu, watchdog_timeout=timeout, reply_timeout=0.08), WorkerOptions()) as worker:
         worker.start()
         worker.start_session(cfg, "killed")
         follow(worker, until="session_started")

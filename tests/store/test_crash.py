@@ -18,10 +18,10 @@ import pytest
 
 from sessions.store import codec, open_server_store
 from sessions.store.database import sqlite_path
-from tests.store_data import FAST_HASHER, telemetry
-from tests.store_writer import evaluation
+from testing.cli import ROOT
+from testing.store import FAST_HASHER, telemetry
+from testing.store_writer import evaluation
 
-ROOT = Path(__file__).resolve().parents[2]
 LOSS = 1.0  # at most this much data (seconds) may be lost
 
 
@@ -30,7 +30,7 @@ def _kill_writer(url: str, after: float) -> tuple[int, float]:
     long it had been feeding when it died (an upper bound of the newest time it fed)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tests.store_writer", url],
+        [sys.executable, "-m", "testing.store_writer", url],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:

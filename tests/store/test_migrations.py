@@ -16,7 +16,7 @@ from sessions.store import Store, StoreError, open_store
 from sessions.store.database import create_store_engine
 from sessions.store.migrate import MIGRATIONS, head_revision
 from sessions.store.models import Base
-from tests.store_data import FAST_HASHER
+from testing.store import FAST_HASHER
 
 TABLES = {
     "accounts", "users", "sessions", "seeker_evaluations", "setpoints", "telemetry_chunks",

@@ -16,7 +16,7 @@ from sessions.store import ConflictError, Store, StoreError, StoreValueError, co
 from sessions.store.decimate import decimate, decimate_pairs, minmax_pairs
 from sessions.store.timeseries import CHUNK_SECONDS
 from sessions.telemetry import INDEX, NAMES, WIDTH, csv_header
-from tests.store_data import telemetry
+from testing.store import telemetry
 
 CFG = parse_session_config({"duration": 600.0})
 

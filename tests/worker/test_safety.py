@@ -18,11 +18,13 @@ import time
 import numpy as np
 import pytest
 
-from sessions.machine.emulator import EmulatorConfig, EmulatorProcess
+from sessions.codes import FLAG_ESTOP
+from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerError, WorkerOptions
-from sessions.worker.ring import FLAG_ESTOP, INDEX
-from tests.live_support import follow, scenario, wait_for
+from sessions.worker.ring import INDEX
+from testing.cli import ROOT
+from testing.live import follow, scenario, wait_for
 
 
 def test_estop_zeroes_torque_within_two_periods_and_latches():
@@ -144,11 +146,11 @@ def test_passivity_breach_stops_the_session_at_the_first_breach():
 PARENT = textwrap.dedent(
     """
     import sys, time
-    from sessions.machine import MachineSpec
     from sessions.worker import Worker, WorkerOptions
-    from tests.live_support import scenario
+    from testing.live import odrive, scenario
     if __name__ == "__main__":
-        spec = MachineSpec(kind="odrive", device=sys.argv[1], timeout=0.2, watchdog_timeout=0.5)
+        limits = {"reply_timeout": 0.2, "watchdog_timeout": 0.5}
+        spec = odrive(sys.argv[1], **limits)
         worker = Worker(spec, WorkerOptions())
         worker.start()
         worker.start_session(scenario(duration=60.0), "orphan")
@@ -174,7 +176,7 @@ def test_parent_death_zeroes_the_torque_and_ends_the_worker():
             [sys.executable, "-c", PARENT, emu.path],
             stdout=subprocess.PIPE,
             text=True,
-            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+            cwd=ROOT,  # (the script imports testing.live from the checkout)
         )
         try:
             worker_pid = int(parent.stdout.readline())  # type: ignore[union-attr]

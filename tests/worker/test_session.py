@@ -13,6 +13,7 @@ import asyncio
 import numpy as np
 import pytest
 
+from sessions.codes import FLAG_STOPPING
 from sessions.config import ScenarioError
 from sessions.loop import Loop
 from sessions.machine import MachineSpec
@@ -20,18 +21,10 @@ from sessions.machine.sim import SimMachine
 from sessions.simulation import run_simulation
 from sessions.summary import summarize
 from sessions.worker import COLUMNS, Worker, WorkerError, WorkerOptions
-from sessions.worker.ring import FLAG_STOPPING, INDEX
-from tests.live_support import follow, scenario
+from sessions.worker.ring import INDEX
+from testing.live import follow, scenario
 
 NCH = 10  # the engine's telemetry channels come first in a ring record
-
-
-@pytest.fixture(scope="module")
-def worker():
-    with Worker(options=WorkerOptions()) as w:
-        ready = w.start()
-        assert ready is not None and ready.fault is None and ready.machine == "sim"
-        yield w
 
 
 def offline_summary(cfg):
@@ -118,7 +111,7 @@ def test_bad_requests_are_refused_where_they_are_made(worker):
     end = follow(worker).end
     assert end is not None and end.status == "stopped"
     assert worker.state == "idle"
-    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null"))
+    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null", torque_constant=0.1))
     with pytest.raises(ValueError, match="torque sensor"):
         odrive.start_session(scenario(controller={"kind": "measured"}), "x")
 

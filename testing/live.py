@@ -1,0 +1,110 @@
+"""Shared by the live-machine tests (worker, ring, ODrive backend and emulator): scenarios that
+provoke each behaviour, and a helper that follows a worker session to its end.
+
+Everything here drives real parts: a spawned worker process, a real shared-memory ring, a real
+pseudo-terminal with the emulator in its own process. Waits are bounded and generous (a loaded
+2-core VM must not make a test flaky); no assertion is about speed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sessions.config import SessionConfig, parse_session_config
+from sessions.machine import MachineSpec
+from sessions.machine.odrive.emulator import EmulatorConfig
+from sessions.worker import Event, RingReader, SessionEnded, Worker
+
+EMULATED_KT = EmulatorConfig().torque_constant  # the emulated motor's torque constant, N·m/A
+
+# A Hill user found by Brent in a few seconds: fast filter, short windows, noise-free.
+QUICK_SEEK: dict[str, Any] = {
+    "duration": 6.0,
+    "seed": 3,
+    "user": {"kind": "hill", "tau0": 3.0, "wmax": 10.0},
+    "seeker": {
+        "kind": "brent",
+        "filter": {"pole": 6.0},
+        "window": 0.3,
+        "max_window": 2.0,
+        "start_delay": 0.5,
+    },
+}
+
+
+def scenario(**over: Any) -> SessionConfig:
+    """QUICK_SEEK with top-level keys replaced (nested dicts replace whole sections)."""
+    return parse_session_config({**QUICK_SEEK, **over})
+
+
+def odrive(device: str, **kw: Any) -> MachineSpec:
+    """An ODrive spec for the emulated rig at ``device`` (its motor's torque constant)."""
+    return MachineSpec(kind="odrive", device=device, **{"torque_constant": EMULATED_KT, **kw})
+
+
+@dataclass
+class Followed:
+    """Everything a session produced, as seen from the parent."""
+
+    events: list[Event] = field(default_factory=list)
+    end: SessionEnded | None = None
+    seq: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    data: np.ndarray = field(default_factory=lambda: np.zeros((0, 16)))
+    missed: int = 0
+
+    def kinds(self) -> list[str]:
+        return [e.kind for e in self.events]
+
+    def of(self, kind: str) -> list[Any]:
+        return [e for e in self.events if e.kind == kind]
+
+
+def follow(
+    worker: Worker,
+    reader: RingReader | None = None,
+    timeout: float = 60.0,
+    until: str = "session_ended",
+    every: float = 0.02,
+) -> Followed:
+    """Poll the worker (and drain ``reader``) until an event of kind ``until`` arrives."""
+    out = Followed()
+    seqs, rows = [], []
+    deadline = time.monotonic() + timeout
+    done = False
+    while not done:
+        for ev in worker.poll():
+            out.events.append(ev)
+            if isinstance(ev, SessionEnded):
+                out.end = ev
+            if ev.kind == until:
+                done = True
+        if reader is not None:
+            batch = reader.read()
+            out.missed += batch.missed
+            seqs.append(batch.seq)
+            rows.append(batch.data)
+        if not done:
+            if time.monotonic() > deadline:
+                raise AssertionError(f"no {until!r} within {timeout} s; got {out.kinds()}")
+            time.sleep(every)
+    if reader is not None:
+        batch = reader.read()
+        out.missed += batch.missed
+        seqs.append(batch.seq)
+        rows.append(batch.data)
+        out.seq = np.concatenate(seqs)
+        out.data = np.concatenate(rows)
+    return out
+
+
+def wait_for(predicate: Any, timeout: float, every: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(every)
+    return bool(predicate())

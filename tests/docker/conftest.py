@@ -1,0 +1,85 @@
+"""The Docker test's parts: a dockerd of the suite's own (root), a Debian base image made with
+debootstrap from the machine's apt mirror, the project's image built on it
+(:mod:`testing.docker`), and a container of it running the demo. Everything is removed after
+the module, failed or not; the engine's data root is kept as the cache."""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from testing import docker as ds
+
+
+@pytest.fixture(scope="module")
+def engine() -> Iterator[ds.Engine]:
+    """Our own dockerd for this module; stopped and cleaned up after it, failed or not."""
+    try:
+        ds.ensure_prerequisites()
+    except ds.DockerSetupError as exc:
+        pytest.fail(str(exc), pytrace=False)
+    root = ds.cache_dir()
+    with ds.engine_lock(root):
+        try:
+            eng = ds.start_engine(root)
+        except ds.DockerSetupError as exc:
+            pytest.fail(str(exc), pytrace=False)
+        try:
+            yield eng
+        finally:
+            cleaned = ds.stop_engine(eng)
+            print(f"docker timings: {json.dumps(eng.timings)}; cleaned: {cleaned}")
+
+
+@pytest.fixture(scope="module")
+def image(engine: ds.Engine) -> str:
+    try:
+        base = ds.ensure_base_image(engine)
+        return ds.build_project_image(engine, base)
+    except ds.DockerSetupError as exc:
+        pytest.fail(str(exc), pytrace=False)
+
+
+class Demo:
+    def __init__(self, engine: ds.Engine, name: str, port: int, password: str) -> None:
+        self.engine = engine
+        self.name = name
+        self.url = f"http://127.0.0.1:{port}"
+        self.ws_url = f"ws://127.0.0.1:{port}"
+        self.password = password
+
+    def state(self) -> dict[str, Any]:
+        out = self.engine.docker("inspect", "--format", "{{json .State}}", self.name, timeout=30)
+        return json.loads(out.stdout)
+
+    def logs(self, tail: int = 80) -> str:
+        out = self.engine.docker("logs", "--tail", str(tail), self.name, check=False, timeout=30)
+        return out.stdout + out.stderr
+
+
+@pytest.fixture
+def demo(engine: ds.Engine, image: str) -> Iterator[Demo]:
+    """The image run as the README's `docker run` (an anonymous /data volume); removed with
+    its volume afterwards, failed or not."""
+    port = ds.free_port()
+    password = secrets.token_urlsafe(18)
+    name = f"ergoseek-smoke-{os.getpid()}"
+    engine.docker("rm", "--force", "--volumes", name, check=False, timeout=60)
+    engine.docker(
+        "run", "--detach", "--init", "--name", name, "--label", f"{ds.SMOKE_LABEL}=1",
+        "--publish", f"127.0.0.1:{port}:8000",
+        "--env", f"ERGOSEEK_DEMO_PASSWORD={password}",
+        image,
+        timeout=120,
+    )  # fmt: skip
+    d = Demo(engine, name, port, password)
+    try:
+        yield d
+    finally:
+        print(f"---- container logs (last lines)\n{d.logs()}")
+        engine.docker("rm", "--force", "--volumes", name, check=False, timeout=60)
