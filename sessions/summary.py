@@ -8,15 +8,15 @@ truth (simulation, the sim machine): real hardware has none.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from sessions.codes import Bound
 from sessions.loop import Loop
 from sessions.seekers.base import is_finite
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-Bound = Literal["lower", "upper"]
 
 
 class SessionSummary(BaseModel):

@@ -289,6 +289,93 @@ def _noise(resid: np.ndarray, wts: np.ndarray, k: int) -> tuple[float, float]:
     return s2, (1.0 + r1) / (1.0 - r1)
 
 
+@dataclass(slots=True)
+class _Design:
+    """The columns of the model over some rows: the polynomial in x (``base``), the time
+    terms (``extra``), the response y (with a fixed curvature's part taken out)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    base: list[np.ndarray]
+    extra: list[np.ndarray]
+    c_fixed: float | None
+    tau_end: float
+
+
+def _design(
+    rows: np.ndarray,
+    center: float,
+    scale: float,
+    curvature: float | None,
+    powers: int,
+    drift: bool,
+    moving: bool,
+) -> _Design:
+    n = len(rows)
+    x = (rows[:, W] - center) / scale
+    p = rows[:, P]
+    c_fixed = None if curvature is None else 0.5 * curvature * scale * scale
+    y = p if c_fixed is None else p - c_fixed * x * x
+    base = [np.ones(n), x] if c_fixed is not None else [np.ones(n), x, x * x]
+    base += [x**k for k in range(3, 3 + powers)]
+    extra: list[np.ndarray] = []
+    tau_end = 0.0
+    if (drift or moving) and n:
+        tt = rows[:, T]
+        span = float(tt[-1] - tt[0])
+        if span > 0.0:
+            tau = (tt - tt.mean()) / span
+            tau_end = float(tau[-1])
+            extra.append(tau)
+            if moving:
+                extra.append(x * tau)  # the slope changes in time: the top moves
+    return _Design(x, y, base, extra, c_fixed, tau_end)
+
+
+def _iterate(
+    rows: np.ndarray,
+    d: _Design,
+    weights: np.ndarray | None,
+    ripple: bool,
+    prior: tuple[float, float] | None,
+    scale: float,
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int, float, float] | None:
+    """The least-squares passes: the ripple's columns scaled by the previous pass's f (and a
+    prior's ridge weighed by the previous pass's noise). Returns (β, M⁻¹, meat), the number
+    of columns, the residual variance and the AR(1) inflation."""
+    n = len(rows)
+    wts = weights if weights is not None else np.ones(n)
+    level = np.full(n, max(float(np.mean(rows[:, P])), 1e-12))
+    with_prior = prior is not None and d.c_fixed is None
+    solved = None
+    ncols = 0
+    s2 = inflate = 0.0
+    nb = len(d.base)
+    for i in range(2 if ripple or with_prior else 1):
+        cols = d.base + d.extra
+        if ripple:
+            cols += [level * rows[:, j] for j in (S1, C1, S2, C2)]
+        a = np.column_stack(cols)
+        penalty = None
+        if with_prior and i > 0 and prior is not None:
+            c2, se = prior
+            h2 = 0.5 * scale * scale
+            lam = s2 * inflate / max((se * h2) ** 2, 1e-300)
+            penalty = np.array([2.0, lam, c2 * h2])
+        solved = _solve(a, d.y, weights, penalty)
+        if solved is None:
+            return None
+        coef = solved[0]
+        s2, inflate = _noise(d.y - a @ coef, wts, len(cols))
+        f = a[:, :nb] @ coef[:nb]
+        if d.c_fixed is not None:
+            f = f + d.c_fixed * d.x * d.x
+        level = np.maximum(f, 1e-12)
+        ncols = len(cols)
+    assert solved is not None
+    return solved, ncols, s2, inflate
+
+
 def fit(
     rows: np.ndarray,
     center: float,
@@ -314,72 +401,30 @@ def fit(
     misfit = 0.0
     if misfit_test:
         misfit = _misfit(rows, center, scale, drift=drift, weights=weights, ripple=ripple)
-    n = len(rows)
-    w = rows[:, W]
-    p = rows[:, P]
-    x = (w - center) / scale
-    c_fixed = None if curvature is None else 0.5 * curvature * scale * scale
-    y = p if c_fixed is None else p - c_fixed * x * x
-    base = [np.ones(n), x] if c_fixed is not None else [np.ones(n), x, x * x]
-    base += [x**k for k in range(3, 3 + powers)]
-    extra: list[np.ndarray] = []
-    tau_end = 0.0
-    if drift or moving:
-        tt = rows[:, T]
-        span = float(tt[-1] - tt[0]) if n else 0.0
-        if span > 0.0:
-            tau = (tt - tt.mean()) / span
-            tau_end = float(tau[-1])
-            extra.append(tau)
-            if moving:
-                extra.append(x * tau)  # the slope changes in time: the top moves
-    k = len(base) + len(extra) + (4 if ripple else 0)
-    if n < k + 3 or float(np.ptp(x)) <= 0.0:
+    d = _design(rows, center, scale, curvature, powers, drift, moving)
+    k = len(d.base) + len(d.extra) + (4 if ripple else 0)
+    if len(rows) < k + 3 or float(np.ptp(d.x)) <= 0.0:
         return None
-    wts = weights if weights is not None else np.ones(n)
-    level = np.full(n, max(float(np.mean(p)), 1e-12))
-    with_prior = prior is not None and c_fixed is None
-    solved = None
-    cols: list[np.ndarray] = []
-    s2 = inflate = 0.0
-    for i in range(2 if ripple or with_prior else 1):
-        cols = list(base) + extra
-        if ripple:
-            cols += [level * rows[:, j] for j in (S1, C1, S2, C2)]
-        a = np.column_stack(cols)
-        penalty = None
-        if with_prior and i > 0 and prior is not None:
-            c2, se = prior
-            h2 = 0.5 * scale * scale
-            lam = s2 * inflate / max((se * h2) ** 2, 1e-300)
-            penalty = np.array([2.0, lam, c2 * h2])
-        solved = _solve(a, y, weights, penalty)
-        if solved is None:
-            return None
-        coef = solved[0]
-        resid = y - a @ coef
-        s2, inflate = _noise(resid, wts, len(cols))
-        f = a[:, : len(base)] @ coef[: len(base)]
-        if c_fixed is not None:
-            f = f + c_fixed * x * x
-        level = np.maximum(f, 1e-12)
-    assert solved is not None
-    coef, inv, meat = solved
+    done = _iterate(rows, d, weights, ripple, prior, scale)
+    if done is None:
+        return None
+    (coef, inv, meat), ncols, s2, inflate = done
     cov_full = inv @ meat @ inv * s2 * inflate  # the sandwich: robust to the weights
+    nb = len(d.base) - powers
     cov = np.zeros((3, 3))
-    nb = len(base) - powers
     cov[:nb, :nb] = cov_full[:nb, :nb]
     coef3 = np.zeros(3)
     coef3[:nb] = coef[:nb]
-    if c_fixed is not None:
-        coef3[2] = c_fixed
+    if d.c_fixed is not None:
+        coef3[2] = d.c_fixed
     if not np.all(np.isfinite(coef3)) or not np.all(np.isfinite(cov)):
         return None
-    rip = tuple(float(v) for v in coef[len(cols) - 4 :]) if ripple else (0.0, 0.0, 0.0, 0.0)
+    rip = tuple(float(v) for v in coef[ncols - 4 : ncols]) if ripple else (0.0, 0.0, 0.0, 0.0)
     now = None
-    if moving and len(extra) == 2:
-        j = len(base) + len(extra) - 1
-        now = _vertex_now(coef, cov_full, center, scale, j, tau_end, c_fixed)
+    if moving and len(d.extra) == 2:
+        j = len(d.base) + len(d.extra) - 1
+        now = _vertex_now(coef, cov_full, center, scale, j, d.tau_end, d.c_fixed)
+    w = rows[:, W]
     return Fit(
         center=center,
         scale=scale,
@@ -390,7 +435,7 @@ def fit(
         inflate=inflate,
         misfit=misfit if not powers else _t_max(coef, cov_full, 3, 3 + powers),
         now=now,
-        n=n,
+        n=len(rows),
         w_lo=float(w.min()),
         w_hi=float(w.max()),
     )
