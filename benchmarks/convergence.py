@@ -62,53 +62,70 @@ def _table(rng: np.random.Generator, family: str) -> tuple[list[list[float]], fl
     return pts, w_star
 
 
+def _shape(rng: np.random.Generator, shape: str) -> dict[str, Any]:
+    if shape == "hill":
+        return {
+            "kind": "hill",
+            "tau0": float(rng.uniform(2.0, 15.0)),
+            "wmax": float(rng.uniform(6.0, 20.0)),
+            "curvature": float(rng.uniform(0.15, 0.6)),
+        }
+    pts, _ = _table(rng, shape)
+    return {"kind": "table", "points": pts}
+
+
+def _fatigue(rng: np.random.Generator, group: str) -> dict[str, Any]:
+    """Nothing (steady), torque fatigue, or velocity fatigue (w* drifts; some tire too)."""
+    if group == "torque":
+        if rng.random() < 0.5:
+            return {"fatigue_tau": float(rng.uniform(300.0, 3000.0))}
+        return {
+            "fatigue_model": "three-compartment",
+            "fatigue_effort": float(rng.uniform(0.2, 0.5)),
+            "fatigue_f": 0.002,
+            "fatigue_r": 0.002,
+        }
+    if group == "drift":
+        out = {
+            "velocity_fatigue_floor": float(rng.uniform(0.7, 0.9)),
+            "velocity_fatigue_tau": float(rng.uniform(30.0, 150.0)),
+        }
+        if rng.random() < 0.5:
+            out["fatigue_tau"] = float(rng.uniform(600.0, 3000.0))
+        return out
+    return {}
+
+
+def _bracket(rng: np.random.Generator, user: dict[str, Any], inside: bool) -> list[float]:
+    """γ1 < γ2 < γ3 around the person's optimum over the session (or beside it)."""
+    probe = SimulatedUser(parse_session_config({"user": user}).user, 1e-3, 0)
+    w0 = probe.w_star()
+    w_end = probe.w_star(t=DURATION)
+    lo = min(w0, w_end) * float(rng.uniform(0.35, 0.75))
+    hi = max(w0, w_end) * float(rng.uniform(1.35, 2.4))
+    if not inside:  # the optimum outside the trainer's bracket
+        if rng.random() < 0.5:
+            hi = min(w0, w_end) * float(rng.uniform(0.6, 0.85))
+            lo = hi * float(rng.uniform(0.35, 0.6))
+        else:
+            lo = max(w0, w_end) * float(rng.uniform(1.2, 1.5))
+            hi = lo * float(rng.uniform(1.5, 2.2))
+    guess = lo + (hi - lo) * float(rng.uniform(0.05, 0.95))
+    return [lo, guess, hi]
+
+
 def population(n: int, seed: int) -> list[dict[str, Any]]:
     rng = np.random.default_rng(seed)
     people = []
     for i in range(n):
         shape = ("hill", "flat", "sharp", "skewed")[i % 4]
-        if shape == "hill":
-            user: dict[str, Any] = {
-                "kind": "hill",
-                "tau0": float(rng.uniform(2.0, 15.0)),
-                "wmax": float(rng.uniform(6.0, 20.0)),
-                "curvature": float(rng.uniform(0.15, 0.6)),
-            }
-        else:
-            pts, _ = _table(rng, shape)
-            user = {"kind": "table", "points": pts}
+        user = _shape(rng, shape)
         user["noise"] = float(rng.uniform(0.0, 0.06))
         user["ripple"] = float(rng.uniform(0.0, 0.2))
         group = ("steady", "torque", "drift")[(i // 4) % 3]
-        if group == "torque":
-            if rng.random() < 0.5:
-                user["fatigue_tau"] = float(rng.uniform(300.0, 3000.0))
-            else:
-                user |= {
-                    "fatigue_model": "three-compartment",
-                    "fatigue_effort": float(rng.uniform(0.2, 0.5)),
-                    "fatigue_f": 0.002,
-                    "fatigue_r": 0.002,
-                }
-        elif group == "drift":
-            user["velocity_fatigue_floor"] = float(rng.uniform(0.7, 0.9))
-            user["velocity_fatigue_tau"] = float(rng.uniform(30.0, 150.0))
-            if rng.random() < 0.5:
-                user["fatigue_tau"] = float(rng.uniform(600.0, 3000.0))
-        probe = SimulatedUser(parse_session_config({"user": user}).user, 1e-3, 0)
-        w0 = probe.w_star()
-        w_end = probe.w_star(t=DURATION)
-        lo = min(w0, w_end) * float(rng.uniform(0.35, 0.75))
-        hi = max(w0, w_end) * float(rng.uniform(1.35, 2.4))
+        user |= _fatigue(rng, group)
         inside = i % 8 != 7
-        if not inside:  # the optimum outside the trainer's bracket
-            if rng.random() < 0.5:
-                hi = min(w0, w_end) * float(rng.uniform(0.6, 0.85))
-                lo = hi * float(rng.uniform(0.35, 0.6))
-            else:
-                lo = max(w0, w_end) * float(rng.uniform(1.2, 1.5))
-                hi = lo * float(rng.uniform(1.5, 2.2))
-        guess = lo + (hi - lo) * float(rng.uniform(0.05, 0.95))
+        bracket = _bracket(rng, user, inside)
         people.append(
             {
                 "id": i,
@@ -117,8 +134,8 @@ def population(n: int, seed: int) -> list[dict[str, Any]]:
                 "inside": inside,
                 "seed": int(rng.integers(1, 2**31)),
                 "user": user,
-                "bracket": [lo, guess, hi],
-                "max_velocity": max(15.0, 1.3 * hi),
+                "bracket": bracket,
+                "max_velocity": max(15.0, 1.3 * bracket[2]),
             }
         )
     return people
