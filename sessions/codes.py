@@ -1,6 +1,7 @@
 """Every code that crosses a module or process boundary, defined once.
 
 - **Session status**: what the store keeps, the API filters on and the worker ends with.
+- **Bounds**: where a search ended against the trainer's bracket (``at_bound``).
 - **Seeker phases**: ``Seeker.phase``, and the ring's ``phase`` column (with the worker's
   :data:`STOPPING` for the stop ramp, which is not a seeker phase).
 - **Flags**: the engine's limit bits (:class:`sessions.limits.Limits`) and the worker's own,
@@ -26,6 +27,10 @@ END_STATUSES: tuple[EndStatus, ...] = get_args(EndStatus)
 DELAY, SETTLING, MEASURING, DONE = 0, 1, 2, 3
 PHASES: tuple[str, ...] = ("delay", "settling", "measuring", "done")  # index = code
 STOPPING = -1  # the ring's phase column during the worker's stop ramp
+
+# -- the bound a search ended at (the best point there, the power still rising outward) ------
+Bound = Literal["lower", "upper"]
+BOUNDS: tuple[Bound, ...] = get_args(Bound)
 
 
 def phase_name(code: float) -> str | None:

@@ -21,6 +21,7 @@ from sessions.machine.base import Machine
 from sessions.machine.spec import SimFault
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
+from sessions.truth import Truth
 
 HUGE_TORQUE = 1e308  # N·m: finite, and every product the loop forms with it overflows
 
@@ -47,6 +48,9 @@ class SimMachine(Machine):
         self.plant = Plant(cfg.machine.inertia)
         self.steps = 0
         self.fault_step = -1 if self.fault is None else round(self.fault.at / cfg.dt)
+
+    def truth(self) -> Truth | None:
+        return self.user
 
     def _read(self) -> tuple[float, float, float]:
         plant = self.plant

@@ -32,7 +32,7 @@ from sqlalchemy import (
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-from sessions.codes import ROLES, STATUSES, TOKEN_KINDS
+from sessions.codes import BOUNDS, ROLES, STATUSES, TOKEN_KINDS
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -116,6 +116,7 @@ class ExerciseSession(Base):
     __tablename__ = "sessions"
     __table_args__ = (
         CheckConstraint(_in("status", STATUSES), name="status"),
+        CheckConstraint(_in("at_bound", BOUNDS), name="at_bound"),
         Index(None, "started_at", "id"),
         Index(None, "user_id", "started_at"),
         Index(None, "status"),
@@ -142,6 +143,16 @@ class ExerciseSession(Base):
     passivity_min: Mapped[float] = mapped_column(Double, default=0.0)
     evaluation_count: Mapped[int] = mapped_column(Integer, default=0)
     abort_reason: Mapped[str | None] = mapped_column(Text)
+    # the search (issue 14): where it ended against the bracket, when and where it first
+    # converged, the extremes of its targets, the regret (simulated users only)
+    at_bound: Mapped[str | None] = mapped_column(String(8))
+    optimum_t: Mapped[float | None] = mapped_column(Double)
+    t_converged: Mapped[float | None] = mapped_column(Double)
+    wd_converged: Mapped[float | None] = mapped_column(Double)
+    p_converged: Mapped[float | None] = mapped_column(Double)
+    target_min: Mapped[float | None] = mapped_column(Double)
+    target_max: Mapped[float | None] = mapped_column(Double)
+    regret: Mapped[float | None] = mapped_column(Double)
 
 
 class SeekerEvaluation(Base):

@@ -10,7 +10,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from sessions.codes import Role, SessionStatus, TokenKind
+from sessions.codes import Bound, Role, SessionStatus, TokenKind
 from sessions.config import SessionConfig
 from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX
@@ -74,12 +74,28 @@ class SessionRecord(Record):
     passivity_min: float
     evaluation_count: int
     abort_reason: str | None
+    at_bound: Bound | None = None
+    optimum_t: float | None = None
+    t_converged: float | None = None
+    wd_converged: float | None = None
+    p_converged: float | None = None
+    target_min: float | None = None
+    target_max: float | None = None
+    regret: float | None = None
 
     def summary(self) -> SessionSummary:
         return SessionSummary(
             optimum_w=self.optimum_w,
             optimum_p=self.optimum_p,
+            optimum_t=self.optimum_t,
             converged=self.converged,
+            at_bound=self.at_bound,
+            t_converged=self.t_converged,
+            wd_converged=self.wd_converged,
+            p_converged=self.p_converged,
+            target_min=self.target_min,
+            target_max=self.target_max,
+            regret=self.regret,
             seeker=self.seeker,
             mean_power=self.mean_power,
             peak_power=self.peak_power,

@@ -48,6 +48,12 @@ def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:
     assert s["status"] == "completed", body
     assert s["converged"]
     assert s["optimum_w"] == pytest.approx(w_star, rel=0.05)
+    # the search's figures (issue 14): inside the bracket, first converged, scored on the
+    # simulated person's true power
+    lo, _, hi = s["config"]["seeker"]["bracket"]
+    assert s["at_bound"] is None and 0.0 < s["t_converged"] < s["optimum_t"] == s["duration"]
+    assert lo <= s["target_min"] <= s["wd_converged"] <= s["target_max"] <= hi
+    assert 0.0 < s["regret"] < 0.2
     assert s["duration"] == pytest.approx(30.0, abs=0.01)
     assert len(body["evaluations"]) == s["evaluation_count"] >= 3
     with server.client("viewer") as c:

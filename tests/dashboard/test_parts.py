@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import html
 import math
+from datetime import UTC, datetime
 
 import numpy as np
 import pytest
 
 from sessions.config import parse_session_config
+from sessions.store import SessionRecord, UserRecord
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
 from webui.charts import (
@@ -26,6 +28,7 @@ from webui.charts import (
 from webui.escape import WORD_JOINER
 from webui.feed import describe_event
 from webui.progress import SeekerProgressView
+from webui.tabs.history import session_markdown, sessions_table
 
 
 def ring_rows(t: np.ndarray, session: int = 1) -> np.ndarray:
@@ -138,3 +141,33 @@ def test_the_seeker_chart_shows_every_candidate_and_the_bracket() -> None:
     assert lo < 2.85 and hi > 3.47
     lo, hi = seeker_x_range([], (1.0, 6.0))
     assert lo < 1.0 and hi > 6.0
+
+
+def _record(**search: object) -> SessionRecord:
+    search = {"converged": False} | search
+    return SessionRecord(
+        id=7, user_id=1, account_id=None, backend="simulation",
+        config={"seeker": {"kind": "sweep"}, "controller": {"kind": "rise"}},
+        status="completed", started_at=datetime(2026, 12, 1, 12, tzinfo=UTC), ended_at=None,
+        seeker="sweep", optimum_w=6.0, optimum_p=9.5, mean_power=8.0,
+        peak_power=12.0, work=960.0, duration=120.0, passivity_min=0.0, evaluation_count=100,
+        abort_reason=None, **search,  # type: ignore[arg-type]
+    )  # fmt: skip
+
+
+def _user() -> UserRecord:
+    when = datetime(2026, 12, 1, tzinfo=UTC)
+    return UserRecord(
+        id=1, name="Ada", notes="", body_mass_kg=None, limb=None, created_at=when, updated_at=when
+    )
+
+
+def test_a_session_at_a_bound_tells_the_trainer_to_widen_the_bracket() -> None:
+    at = _record(at_bound="upper", target_min=2.0, target_max=6.0)
+    text = html.unescape(session_markdown(at))
+    assert "upper bound" in text and "Widen the bracket's upper end" in text
+    assert "not stored" in text and " converged" not in text
+    assert "6.000 (at the upper bound)" in html.unescape(sessions_table(_user(), 1, [at], None))
+    found = _record(converged=True, t_converged=11.6, wd_converged=3.2)
+    text = html.unescape(session_markdown(found))
+    assert "bound" not in text and "First converged at 11.6 s on 3.200 rad/s" in text

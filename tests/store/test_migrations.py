@@ -44,7 +44,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         with pytest.raises(StoreError, match="db upgrade"):
             open_store(db_url, upgrade=False)
         st.upgrade()
-        assert st.current_revision() == head_revision() == "0002"
+        assert st.current_revision() == head_revision() == "0003"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"}
         assert diff == []
@@ -53,7 +53,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         assert st.current_revision() is None
         assert _schema(db_url)[0] <= {"alembic_version"}
         st.upgrade()
-        assert st.current_revision() == "0002"
+        assert st.current_revision() == "0003"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"} and diff == []
         again = st.users.create("after")
@@ -72,6 +72,7 @@ def test_migrations_ship_with_the_package() -> None:
     assert sorted(p.name for p in (MIGRATIONS / "versions").glob("*.py")) == [
         "0001_initial.py",
         "0002_auth_tokens_sim_profile.py",
+        "0003_session_search.py",
     ]
     assert not list(Path(MIGRATIONS).rglob("alembic.ini"))
 
@@ -88,10 +89,10 @@ def test_db_command_upgrade_and_current(
         assert "revision none (empty)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
     out = capsys.readouterr().out
-    assert out.strip().endswith("revision 0002 (newest)")
+    assert out.strip().endswith("revision 0003 (newest)")
     monkeypatch.delenv("ERGOSEEK_DATABASE_URL")
     assert main(["db", "current", "--url", db_url]) == 0
-    assert "revision 0002 (newest)" in capsys.readouterr().out
+    assert "revision 0003 (newest)" in capsys.readouterr().out
 
 
 def test_upgrade_from_the_first_revision_keeps_the_data(db_url: str) -> None:

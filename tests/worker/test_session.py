@@ -32,7 +32,7 @@ def offline_summary(cfg):
     m.connect()
     m.arm(cfg)
     m.activate()
-    loop = Loop(cfg)
+    loop = Loop(cfg, truth=m.truth())  # as the worker: the simulated person scores the regret
     loop.begin(0.0, 0.0)
     for _ in range(round(cfg.duration * cfg.rate)):
         q, w, tau = m.read()
