@@ -163,6 +163,9 @@ def ws_status(url: str, headers: dict[str, str]) -> int:
 
 
 def pick(page: Page, combobox: str, option: str) -> None:
+    # A field left with Tab may hand the focus to a select whose list then opens over what
+    # follows it; Escape closes any list that is open before this one is clicked.
+    page.keyboard.press("Escape")
     page.get_by_role("combobox", name=combobox, exact=True).click()
     page.get_by_role("option", name=option, exact=True).click()
 
