@@ -28,13 +28,14 @@ from dataclasses import dataclass
 import viser
 
 from sessions.store import SessionRecord
+from webui import layout
 from webui.bridge import Who
 from webui.charts import LIVE, LiveCharts
 from webui.context import Context
 from webui.escape import Html, HtmlBox, Markdown, MarkdownBox, html, md, md_join, md_lines
 from webui.feed import LiveState
 from webui.frames import guard_updates
-from webui.layout import canvas_of, place
+from webui.layout import TOUCH_CSS
 from webui.progress import SeekerPanel
 from webui.scene import MachineScene
 from webui.tabs.history import HistoryTab
@@ -85,6 +86,36 @@ def readout(st: LiveState) -> Markdown:
     )
 
 
+NUMBERS_HTML = (
+    '<div class="ergoseek-numbers" role="status" aria-label="live velocity and power">'
+    '<div><div class="k">velocity w [rad/s]</div><div class="v ergoseek-w">{}</div>'
+    '<div class="k">target {}</div></div>'
+    '<div><div class="k">power p [W]</div><div class="v ergoseek-p">{}</div>'
+    '<div class="k">{}</div></div></div>'
+)
+
+
+def numbers_html(st: LiveState | None) -> Html:
+    """The large numbers at the top of the main panel: the latest velocity and power (and
+    the velocity the controller is after, and the session time)."""
+    row = st.window.last if st is not None else None
+    if row is None:
+        return html(NUMBERS_HTML, "—", "—", "—", "no live data")
+
+    def v(name: str, fmt: str) -> str:
+        x = float(row[LIVE[name]])
+        return format(x, fmt) if math.isfinite(x) else "—"
+
+    running = st.active is not None
+    return html(
+        NUMBERS_HTML,
+        v("w", ".2f"),
+        v("wd", ".2f"),
+        v("p", ".1f"),
+        f"t = {v('t', '.1f')} s" if running else "no session running",
+    )
+
+
 @dataclass(frozen=True)
 class Picture:
     """What every browser's own dashboard shows alike (markdown, escaped)."""
@@ -110,6 +141,8 @@ class SharedView:
         server.initial_camera.position = (1.2, -1.6, 0.55)
         server.initial_camera.look_at = (0.1, 0.0, 0.05)
         self.scene = MachineScene(server.scene, float(ctx.settings.max_torque))
+        self.numbers = HtmlBox(gui, numbers_html(None), order=layout.ORDER_NUMBERS)
+        HtmlBox(gui, html(TOUCH_CSS), order=layout.ORDER_STYLE)
         tabs = gui.add_tab_group()
         with tabs.add_tab("Live charts", viser.Icon.CHART_LINE):
             self.readout = MarkdownBox(gui, md("No live data yet."))
@@ -137,6 +170,7 @@ class SharedView:
                 self.charts.label_user_torque(st.active.cfg.controller.kind == "measured")
             if text:
                 self.readout.show(readout(st))
+                self.numbers.show(numbers_html(st))
 
     def picture(self, st: LiveState) -> Picture:
         user = self.ctx.user_by_id(st.active.user_id) if st.active is not None else None
@@ -156,21 +190,26 @@ class ClientView:
         self.ctx = ctx
         gui = client.gui
         guard_updates(gui)
-        self.controls = gui.add_panel()
+        self.live = LiveTab(gui, ctx, who)  # E-STOP, Start, Stop, Reset: the main panel's top
+        self.controls = gui.add_panel(order=layout.PANEL_ORDER["controls"])
         with self.controls.add_tab("Live", viser.Icon.ACTIVITY):
             role = "trainer controls" if who.trainer else "view only"
             self.account = HtmlBox(gui, logout_html(who, role))
-            self.live = LiveTab(gui, ctx, who)
+            self.live.build_tab(gui)
         with self.controls.add_tab("History", viser.Icon.HISTORY):
             self.history = HistoryTab(gui, ctx)
         self.users: UsersTab | None = None
         if who.trainer:
             with self.controls.add_tab("Users", viser.Icon.USERS):
                 self.users = UsersTab(gui, ctx, who)
-        self.seeker_panel = gui.add_panel()
+        self.seeker_panel = gui.add_panel(order=layout.PANEL_ORDER["seeker"])
         with self.seeker_panel.add_tab("Seeker progress", viser.Icon.TARGET):
             self.seeker = SeekerPanel(gui)
-        place(client, self.controls, self.seeker_panel, canvas_of(client))
+        self.viewport = layout.place(
+            client,
+            {"controls": self.controls, "seeker": self.seeker_panel},
+            layout.canvas_of(client),
+        )
         ctx.background(self.history.load_user)
         if who.trainer:
             ctx.background(self.live._show_optimum)

@@ -36,6 +36,7 @@ from sessions.store import (
     StoreValueError,
 )
 from sessions.worker import WorkerError
+from webui import layout
 from webui.bridge import Who
 from webui.context import Context, relabel
 from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
@@ -120,12 +121,16 @@ def running_markdown(st: LiveState) -> Markdown:
 
 
 class LiveTab:
+    """Built in two places: the constructor (at the main panel's root, the current context)
+    puts a trainer's E-STOP, Start, Stop, Reset and their message at the top of the main
+    panel, always in reach (:mod:`webui.layout`'s orders); :meth:`build_tab` (inside the
+    Live tab) the status, the session setup and the log."""
+
     def __init__(self, gui: viser.GuiApi, ctx: Context, who: Who) -> None:
         self.gui = gui
         self.ctx = ctx
         self.who = who
         self.control = who.trainer
-        self.status = MarkdownBox(gui, md("Machine: **starting**"))
         self._shown: dict[str, Any] = {}
         self._starting = False
         if self.control:
@@ -134,12 +139,18 @@ class LiveTab:
                 color="red",
                 icon=viser.Icon.HAND_STOP,
                 hint="Zero torque now; the machine stays stopped until Reset",
+                order=layout.ORDER_ESTOP,
             )
             self.estop.on_click(self._on_estop)
-            with gui.add_folder("Session setup"):
-                self._build_setup(gui)
             self._build_actions(gui)
             self._stored: SetpointRecord | None = None
+
+    def build_tab(self, gui: viser.GuiApi) -> None:
+        """The Live tab's content (call inside it)."""
+        self.status = MarkdownBox(gui, md("Machine: **starting**"))
+        if self.control:
+            with gui.add_folder("Session setup"):
+                self._build_setup(gui)
         else:
             self.setup = MarkdownBox(gui, md("Viewer: the dashboard without controls."))
         self.log = MarkdownBox(gui, md(" "))
@@ -185,10 +196,11 @@ class LiveTab:
         self.controller.on_update(lambda _: self._show_controller())
 
     def _build_actions(self, gui: viser.GuiApi) -> None:
-        self.start = gui.add_button("Start", color="green", icon=viser.Icon.PLAYER_PLAY)
-        self.stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=True)
-        self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=True)
-        self.message = MarkdownBox(gui, md(" "))
+        at = layout.ORDER_ACTIONS
+        self.start = gui.add_button("Start", color="green", icon=viser.Icon.PLAYER_PLAY, order=at)
+        self.stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=True, order=at + 1)
+        self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=True, order=at + 2)
+        self.message = MarkdownBox(gui, md(" "), order=at + 3)
         self.start.on_click(self._on_start)
         self.stop.on_click(self._on_stop)
         self.reset.on_click(self._on_reset)
