@@ -8,6 +8,7 @@ default; unknown keys are rejected so a typo never silently falls back to a defa
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from sessions import stability
+from sessions.protocol.config import Protocol, headroom_problem
 
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -135,13 +137,20 @@ class SeekerConfig(StrictModel):
 class SessionConfig(StrictModel):
     """One whole session: how long, how fast, on what machine, for whom, with what."""
 
-    duration: Positive = Field(120.0, le=24 * 3600, description="s")
+    duration: Positive = Field(
+        120.0,
+        le=24 * 3600,
+        description="s; with a protocol, the longest it may take (default: the protocol's own)",
+    )
     rate: Positive = Field(1000.0, ge=50.0, le=20000.0, description="loop rate, Hz")
     seed: int = Field(1, ge=0, description="seeds every random process of the simulated user")
     machine: MachineConfig = MachineConfig()
     user: UserConfig = UserConfig()
     controller: ControllerConfig = ControllerConfig()
     seeker: SeekerConfig = SeekerConfig()
+    protocol: Protocol | None = Field(
+        None, description="the phases the session runs (none: one seek phase for the duration)"
+    )
 
     @model_validator(mode="after")
     def _within_machine(self) -> SessionConfig:
@@ -169,6 +178,37 @@ class SessionConfig(StrictModel):
         problem = stability.violation(self)
         if problem is not None:
             raise ValueError(problem)
+        return self
+
+    @model_validator(mode="after")
+    def _protocol(self) -> SessionConfig:
+        """A protocol's velocities within the machine's headroom and the reference's torque
+        budget, and a duration that lets it finish (by default exactly that)."""
+        if self.protocol is None:
+            return self
+        problem = headroom_problem(self.protocol, self.machine.max_velocity)
+        if problem is not None:
+            raise ValueError(f"{problem[0]}: {problem[1]}")
+        top = max([v for _, v in self.protocol.velocities()], default=0.0)
+        if top > self.seeker.bracket[2]:
+            problem = stability.reference_violation(
+                self.model_copy(update={"seeker": self.seeker.model_copy(
+                    update={"bracket": (*self.seeker.bracket[:2], top)})})
+            )  # fmt: skip
+            if problem is not None:
+                raise ValueError(problem.replace("γ3", "the protocol's highest velocity"))
+        bracket = (self.seeker.bracket[0], self.seeker.bracket[2])
+        longest = self.protocol.longest(bracket, self.machine.max_velocity)
+        if "duration" not in self.model_fields_set:
+            if longest > 24 * 3600:
+                raise ValueError(f"protocol: takes up to {longest:.0f} s, more than a day")
+            object.__setattr__(self, "duration", float(math.ceil(longest)))  # frozen: set once
+            return self
+        if self.duration < longest:
+            raise ValueError(
+                f"duration: {self.duration:g} s is shorter than the protocol may take "
+                f"({math.ceil(longest)} s); leave it out to use that"
+            )
         return self
 
     @property

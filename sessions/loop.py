@@ -3,6 +3,8 @@
 Per period (ros2_control's read → update → write, the read and write being the caller's):
     e = w - wd (3); u = controller (7) or (23); limits; τ or τ̂ (28); p (4) or (31);
     W += τ w dt (5); the seeker is told p and advances the reference to the next period.
+The reference comes from the protocol runner (:mod:`sessions.protocol.runner`), which wraps the
+seeker: a session without a protocol is one seek phase, whose reference is the seeker's own.
 The loop knows nothing of clocks, processes or the web: time is the step count × dt.
 Each step leaves its telemetry row in ``row`` (channels of :mod:`sessions.telemetry`), plain
 floats for whoever records them (simulation arrays, the worker's shared-memory ring).
@@ -17,6 +19,7 @@ from sessions.controllers import make_controller
 from sessions.limits import Limits
 from sessions.objective import modified_power, surrogate_power
 from sessions.passivity import PassivityMonitor
+from sessions.protocol.runner import ProtocolRunner
 from sessions.seekers import Evaluation, make_seeker
 from sessions.stability import deadbeat_gain
 from sessions.telemetry import INDEX, WIDTH
@@ -24,8 +27,8 @@ from sessions.telemetry import INDEX, WIDTH
 
 class Loop:
     __slots__ = (
-        "cfg", "dt", "k", "controller", "seeker", "limits", "passivity", "rho", "surrogate",
-        "row", "flags", "evaluation", "peak_power", "power_sum", "_calls",
+        "cfg", "dt", "k", "controller", "seeker", "reference", "limits", "passivity", "rho",
+        "surrogate", "row", "flags", "evaluation", "peak_power", "power_sum", "stage", "_calls",
     )  # fmt: skip
 
     def __init__(self, cfg: SessionConfig, *, as_printed: bool = False) -> None:
@@ -35,6 +38,7 @@ class Loop:
         self.k = 0
         self.controller = make_controller(cfg.controller, m.inertia)
         self.seeker = make_seeker(cfg.seeker, self.dt, m.max_velocity, as_printed=as_printed)
+        self.reference = ProtocolRunner(cfg, self.seeker)  # wd, ad, γ: the seeker's in a seek
         self.limits = Limits(m.max_torque, m.max_velocity, deadbeat_gain(m.inertia, self.dt))
         self.passivity = PassivityMonitor(m.passivity_c2)
         self.rho = cfg.seeker.rho
@@ -44,27 +48,30 @@ class Loop:
         self.evaluation: Evaluation | None = None
         self.peak_power = 0.0
         self.power_sum = 0.0
+        self.stage = 0  # the protocol phase whose reference the last step used
         # bound once: step() runs every period
         self._calls = (
             self.controller.command, self.limits.apply, self.controller.commit,
-            self.passivity.add, self.seeker.tell,
+            self.passivity.add, self.reference.tell,
         )  # fmt: skip
 
     def begin(self, q0: float, w0: float) -> None:
         """Start at the machine's current state: the reference starts at w0, u(t0) = 0 for RISE."""
-        seeker = self.seeker
-        seeker.begin(w0)
-        self.controller.begin(w0 - seeker.wd, seeker.ad)
-        self.row = (0.0, q0, w0, seeker.wd, seeker.ad, 0.0, 0.0, 0.0, 0.0, seeker.target)
+        ref = self.reference
+        ref.begin(w0)
+        self.controller.begin(w0 - ref.wd, ref.ad)
+        self.row = (0.0, q0, w0, ref.wd, ref.ad, 0.0, 0.0, 0.0, 0.0, ref.target)
+        self.stage = ref.phase
 
     def step(self, q: float, w: float, tau_measured: float = math.nan) -> float:
         """One period: the measured state in, the motor torque to apply out."""
         dt = self.dt
         t = self.k * dt
         command, apply, commit, add_work, tell = self._calls
-        seeker = self.seeker
-        wd = seeker.wd
-        ad = seeker.ad
+        ref = self.reference
+        wd = ref.wd
+        ad = ref.ad
+        self.stage = ref.phase
         e = w - wd  # (3)
         u_cmd = command(e, ad, tau_measured)
         u = apply(u_cmd, w)
@@ -76,10 +83,19 @@ class Loop:
         if pm > self.peak_power:
             self.peak_power = pm
         self.evaluation = tell(t, q, p, e)
-        self.row = (t, q, w, wd, ad, u, tau, p, work, seeker.target)
+        self.row = (t, q, w, wd, ad, u, tau, p, work, ref.target)
         self.flags = self.limits.flags
         self.k += 1
         return u
+
+    def wind_down(self) -> None:
+        """Bring the handle to rest under control (the protocol's closing stop), from now."""
+        self.reference.wind_down()
+
+    @property
+    def finished(self) -> bool:
+        """The protocol is over and the handle at rest: the torque may be released."""
+        return self.reference.finished
 
     def value(self, channel: str) -> float:
         """The last step's value of one telemetry channel."""

@@ -3,7 +3,9 @@
 The worker paces the cycles in real time; the plant advances exactly one loop period per
 ``write`` (zero-order hold of u, as a drive applies a setpoint), so a session on this backend
 is the same computation as :func:`sessions.simulation.run_simulation` with the same config,
-step for step, whatever the scheduling jitter. The handle has a torque sensor: ``read``
+step for step, whatever the scheduling jitter. The simulated person follows the session's cues
+(:meth:`Machine.follow`): relaxes in a rest, and at the end of a session once the handle is
+brought to rest. The handle has a torque sensor: ``read``
 returns the user torque at the current state, so controller A (7) works here.
 """
 
@@ -13,6 +15,7 @@ from sessions.config import SessionConfig
 from sessions.machine.base import Machine
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
+from sessions.protocol.cues import CuedPerson
 
 
 class SimMachine(Machine):
@@ -22,7 +25,7 @@ class SimMachine(Machine):
     def __init__(self) -> None:
         super().__init__()
         self.plant: Plant | None = None
-        self.user: SimulatedUser | None = None
+        self.user: SimulatedUser | CuedPerson | None = None
         self.dt = 0.0
 
     def _connect(self) -> None:
@@ -30,7 +33,9 @@ class SimMachine(Machine):
 
     def _arm(self, cfg: SessionConfig) -> None:
         self.dt = cfg.dt
-        self.user = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+        person = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+        cues = self.cues
+        self.user = person if cues is None else CuedPerson(person, cues, cfg.dt)
         self.plant = Plant(cfg.machine.inertia)
 
     def _read(self) -> tuple[float, float, float]:

@@ -9,7 +9,8 @@
   ramp), **supervise** (limits, passivity, duration: :mod:`sessions.worker.supervisor`),
   **write** the torque;
 - **publish**: the record into the shared-memory ring, the heartbeat, the timing; events
-  (a seeker evaluation, limit hits, a Timing a second) go out over the channel.
+  (a seeker evaluation, a protocol stage begun, limit hits, a Timing a second) go out over
+  the channel.
 
 A machine fault at read or write ends the session ``faulted`` (the backend has zeroed the
 torque). Nothing here allocates more than short-lived floats and tuples.
@@ -26,7 +27,7 @@ from sessions.codes import FLAG_FAULT, FLAG_STOPPING, STOPPING
 from sessions.config import SessionConfig
 from sessions.loop import Loop
 from sessions.machine import MachineError
-from sessions.worker.messages import CandidateMeasured, Timing
+from sessions.worker.messages import CandidateMeasured, StageBegun, Timing
 from sessions.worker.pacer import Pacer, TimingRecorder
 from sessions.worker.ring import H_CYCLES, H_HEARTBEAT
 from sessions.worker.supervisor import End, Supervisor
@@ -53,6 +54,7 @@ class SessionCycle:
         self.row = loop.row  # the last record's engine channels
         self.phase = 0.0
         self.flags = 0
+        self.stage = float(loop.stage)
 
     @property
     def timing(self) -> TimingRecorder:
@@ -66,6 +68,8 @@ class SessionCycle:
         record = pacer.timing.record
         poll = host.cmd_poll.poll
         next_timing = mono() + self.timing_interval
+        for stage in self.loop.reference.log:  # the first stage, begun with the loop
+            host.emit(StageBegun(mono(), self.sid, stage))
         pacer.start()
         while True:
             now, late = pacer.wait()
@@ -82,7 +86,10 @@ class SessionCycle:
             except MachineError as exc:
                 end = sup.fault(str(exc), mono())
                 return self.last_record(end, FLAG_FAULT, late, now)
-            rwrite((*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session))
+            rwrite(
+                (*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session,
+                 self.stage)
+            )  # fmt: skip
             hdr[H_HEARTBEAT] = mono_ns()
             hdr[H_CYCLES] = cycles
             record(late, mono() - now)
@@ -125,8 +132,12 @@ class SessionCycle:
             u = loop.step(q, w, tau)
             self.row = loop.row
             self.phase = float(loop.seeker.phase)
+            self.stage = float(loop.stage)
             if loop.evaluation is not None:
                 self.evaluated(now)
+            stage = loop.reference.changed
+            if stage is not None:
+                self.host.emit(StageBegun(now, self.sid, stage))
             self.flags = loop.flags | sup.check(u, w, now)
             return u
         u = ramp.command(w)
@@ -154,6 +165,6 @@ class SessionCycle:
         row = self.row
         self.host.ring.write(
             (row[0] + self.loop.dt, *row[1:5], 0.0, *row[6:], 0.0, float(STOPPING), float(flags),
-             late * 1e6, now, self.session)
+             late * 1e6, now, self.session, self.stage)
         )  # fmt: skip
         return end

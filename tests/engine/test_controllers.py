@@ -52,7 +52,7 @@ def test_rise_loop_starts_from_zero_torque_with_an_initial_error() -> None:
     loop = Loop(cfg)
     loop.begin(0.0, 2.0)
     loop.seeker.filter.reset(0.5)  # a reference away from the machine's velocity
-    loop.seeker.wd = 0.5
+    loop.seeker.wd = loop.reference.wd = 0.5  # the loop reads the runner's reference
     loop.controller.begin(2.0 - 0.5, 0.0)
     assert loop.step(0.0, 2.0) == pytest.approx(0.0, abs=1e-12)
 
