@@ -182,21 +182,21 @@ class SessionConfig(StrictModel):
 
     @model_validator(mode="after")
     def _protocol(self) -> SessionConfig:
-        """A protocol's velocities within the machine's headroom and the reference's torque
-        budget, and a duration that lets it finish (by default exactly that)."""
+        """A protocol's velocities within the machine's headroom and never above the bracket's
+        upper bound γ3 (a hard bound for this person, as for the seeker), and a duration that
+        lets it finish (by default exactly that)."""
         if self.protocol is None:
             return self
         problem = headroom_problem(self.protocol, self.machine.max_velocity)
         if problem is not None:
             raise ValueError(f"{problem[0]}: {problem[1]}")
-        top = max([v for _, v in self.protocol.velocities()], default=0.0)
-        if top > self.seeker.bracket[2]:
-            problem = stability.reference_violation(
-                self.model_copy(update={"seeker": self.seeker.model_copy(
-                    update={"bracket": (*self.seeker.bracket[:2], top)})})
-            )  # fmt: skip
-            if problem is not None:
-                raise ValueError(problem.replace("γ3", "the protocol's highest velocity"))
+        top = self.seeker.bracket[2]
+        for key, v in self.protocol.velocities():
+            if v > top:
+                raise ValueError(
+                    f"{key}: {v:g} rad/s is above the bracket's upper bound γ3 = {top:g} rad/s "
+                    "(the person's limit: widen seeker.bracket if it is safe)"
+                )
         bracket = (self.seeker.bracket[0], self.seeker.bracket[2])
         longest = self.protocol.longest(bracket, self.machine.max_velocity)
         if "duration" not in self.model_fields_set:

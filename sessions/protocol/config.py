@@ -25,6 +25,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from sessions.codes import PHASE_KINDS
+
 Order = Literal["ascending", "descending", "interleaved", "random"]  # sessions.profile.ORDERS
 
 MAX_PHASE = 4 * 3600.0  # s: the longest any one phase may last
@@ -40,9 +42,7 @@ Velocity = Annotated[float, Field(gt=0, le=100.0, allow_inf_nan=False)]
 Effort = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 Label = Annotated[str, Field(max_length=60)]
 
-PhaseKind = Literal["warmup", "seek", "train", "profile", "cooldown"]
-PHASE_KINDS: tuple[str, ...] = ("warmup", "seek", "train", "profile", "cooldown")
-STOP = "stop"  # the runner's own closing phase (not configurable)
+STOP = PHASE_KINDS[-1]  # "stop": the runner's own closing phase (not configurable)
 
 
 class _Model(BaseModel):

@@ -81,7 +81,7 @@ class ProtocolRunner:
         "wd", "ad", "jd", "target", "effort", "k", "k0", "k_end", "mode", "gamma0", "slope",
         "effort0", "effort_slope", "phase", "plan", "seg_i", "phase_k0", "seek_begun",
         "until_converged", "seek_hold", "pending", "stopping", "still", "still_need", "k_min",
-        "finished", "changed", "log", "work_velocity",
+        "finished", "changed", "log", "work_velocity", "open_ended",
     )  # fmt: skip
 
     def __init__(self, cfg: SessionConfig, seeker: Seeker) -> None:
@@ -89,6 +89,9 @@ class ProtocolRunner:
             cfg.protocol if cfg.protocol is not None else implicit_protocol(cfg.duration)
         )
         self.phases = self.protocol.phases
+        # no protocol: the seek lasts until the worker winds it down (the duration reached),
+        # so a simulation for the duration is the seeker's alone, to its last sample
+        self.open_ended = cfg.protocol is None
         self.seeker = seeker
         self.dt = cfg.dt
         self.bracket = cfg.seeker.bracket
@@ -250,6 +253,8 @@ class ProtocolRunner:
             mode = HOLD  # nothing to track: hold the optimum found
         n = max(1, round(seg.duration / self.dt))
         self.k0, self.k_end = j, j + n
+        if self.open_ended and mode == SEEK:
+            self.k_end = 2**62
         self.mode = mode
         self.effort = seg.effort
         gamma = self._gamma(seg)

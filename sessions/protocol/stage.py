@@ -37,6 +37,18 @@ class Stage:
     profile: tuple[tuple[float, float, float, float], ...] = ()  # first segment of a profile:
     # its plan's steps (velocity, start, settled, end), times from the phase's start
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Stage:
+        """Back from :meth:`to_dict` (as stored); unknown keys are ignored, missing numbers
+        (null: not finite) read as NaN."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in d.items() if k in names}
+        for key in ("start", "end", "phase_start", "phase_end", "velocity", "effort"):
+            if values.get(key) is None:
+                values[key] = math.nan
+        values["profile"] = tuple(tuple(float(x) for x in s) for s in values.get("profile") or ())
+        return cls(**values)
+
     def to_dict(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)
         out["profile"] = [list(s) for s in self.profile]

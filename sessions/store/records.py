@@ -10,10 +10,11 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from sessions.codes import Role, SessionStatus, TokenKind
+from sessions.codes import AtBound, PhaseKindName, Role, SessionStatus, TokenKind
 from sessions.config import SessionConfig
 from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX
+from sessions.units import VelocityUnit
 
 T = TypeVar("T")
 
@@ -74,24 +75,109 @@ class SessionRecord(Record):
     passivity_min: float
     evaluation_count: int
     abort_reason: str | None
+    # the seeking summary (None where the seeker or the session did not say)
+    optimum_t: float | None = None
+    at_bound: AtBound | None = None
+    target_min: float | None = None
+    target_max: float | None = None
+    t_converged: float | None = None
+    wd_converged: float | None = None
+    p_converged: float | None = None
+    regret: float | None = None
 
     def summary(self) -> SessionSummary:
-        return SessionSummary(
-            optimum_w=self.optimum_w,
-            optimum_p=self.optimum_p,
-            converged=self.converged,
-            seeker=self.seeker,
-            mean_power=self.mean_power,
-            peak_power=self.peak_power,
-            work=self.work,
-            duration=self.duration,
-            passivity_min=self.passivity_min,
-            evaluations=self.evaluation_count,
-            abort_reason=self.abort_reason,
-        )
+        values: dict[str, Any] = {
+            "optimum_w": self.optimum_w,
+            "optimum_p": self.optimum_p,
+            "converged": self.converged,
+            "seeker": self.seeker,
+            "mean_power": self.mean_power,
+            "peak_power": self.peak_power,
+            "work": self.work,
+            "duration": self.duration,
+            "passivity_min": self.passivity_min,
+            "evaluations": self.evaluation_count,
+            "abort_reason": self.abort_reason,
+        }
+        for name in SUMMARY_EXTRA:  # those the engine's summary knows
+            if name in SessionSummary.model_fields:
+                values[name] = getattr(self, name)
+        return SessionSummary(**values)
 
     def session_config(self) -> SessionConfig:
         return SessionConfig.model_validate(self.config)
+
+
+SUMMARY_EXTRA = (
+    "optimum_t", "at_bound", "target_min", "target_max", "t_converged", "wd_converged",
+    "p_converged", "regret",
+)  # fmt: skip
+
+
+class PhaseRecord(Record):
+    """One phase of a session (session seconds; the summary None until the phase has ended)."""
+
+    id: int
+    session_id: int
+    position: int
+    kind: PhaseKindName
+    name: str
+    t_start: float
+    t_end: float | None
+    planned_end: float | None
+    mean_power: float | None
+    peak_power: float | None
+    work: float | None
+    mean_w: float | None
+    optimum_w: float | None
+    detail: dict[str, Any]
+
+
+class TemplateRecord(Record):
+    """A protocol template: ``account_id`` its owner (None: the owner's account is gone)."""
+
+    id: int
+    name: str
+    description: str
+    protocol: dict[str, Any]
+    account_id: int | None
+    shared: bool
+    created_at: datetime
+    updated_at: datetime
+
+
+class PreferencesRecord(Record):
+    account_id: int
+    velocity_unit: VelocityUnit
+    updated_at: datetime | None = None
+
+
+class ProgressPoint(Record):
+    """One session on a user's progress chart (SI units)."""
+
+    session_id: int
+    started_at: datetime
+    status: SessionStatus
+    protocol: str  # the protocol's name ("" without one)
+    seeker: str
+    converged: bool
+    at_bound: AtBound | None
+    optimum_w: float | None  # the optimum at the end (what was stored), rad/s
+    optimum_p: float | None
+    optimum_t: float | None
+    wd_converged: float | None  # the optimum first found, and when
+    t_converged: float | None
+    mean_power: float
+    peak_power: float
+    work: float
+    duration: float
+    profiles: list[dict[str, Any]] = []  # the profile phases' fits: tau0, wmax, pmax, w_opt, a
+
+
+class ProgressRecord(Record):
+    user_id: int
+    body_mass_kg: float | None
+    sessions: list[ProgressPoint]
 
 
 class EvaluationRecord(Record):
@@ -126,11 +212,12 @@ class SetpointRecord(Record):
 
 
 class SessionDetail(Record):
-    """One session's summary with everything its seeker measured and every event."""
+    """One session's summary with everything its seeker measured, every event and its phases."""
 
     session: SessionRecord
     evaluations: list[EvaluationRecord]
     events: list[EventRecord]
+    phases: list[PhaseRecord] = []
 
 
 class Page(BaseModel, Generic[T]):

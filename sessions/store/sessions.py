@@ -26,13 +26,16 @@ from sessions.store.models import (
     Event,
     ExerciseSession,
     SeekerEvaluation,
+    SessionPhase,
     User,
     utcnow,
 )
 from sessions.store.records import (
+    SUMMARY_EXTRA,
     EvaluationRecord,
     EventRecord,
     Page,
+    PhaseRecord,
     SessionDetail,
     SessionRecord,
 )
@@ -200,7 +203,7 @@ class SessionRepository:
             return self._events(s, session_id, kind)
 
     def detail(self, session_id: int) -> SessionDetail:
-        """The session's summary, its evaluations and its events, read in one snapshot."""
+        """The session's summary, evaluations, events and phases, read in one snapshot."""
         with self._db.session(write=False) as s:
             row = s.get(ExerciseSession, session_id)
             if row is None:
@@ -209,6 +212,14 @@ class SessionRepository:
                 session=SessionRecord.model_validate(row),
                 evaluations=self._evaluations(s, session_id),
                 events=self._events(s, session_id, None),
+                phases=[
+                    PhaseRecord.model_validate(r)
+                    for r in s.scalars(
+                        select(SessionPhase)
+                        .where(SessionPhase.session_id == session_id)
+                        .order_by(SessionPhase.position)
+                    )
+                ],
             )
 
     def add_evaluation(self, session_id: int, evaluation: Any) -> EvaluationRecord:
@@ -264,6 +275,8 @@ class SessionRepository:
                 evaluation_count=sm.evaluations,
                 abort_reason=None,
             )
+            # the seeking summary's fields, where the engine's summary has them
+            values.update({k: getattr(sm, k) for k in SUMMARY_EXTRA if hasattr(sm, k)})
             if sm.seeker:
                 values["seeker"] = v.identifier("summary.seeker", sm.seeker)
             if reason is None:

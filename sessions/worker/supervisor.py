@@ -20,7 +20,7 @@ brings the handle to rest: the loop's reference winds down to zero velocity unde
 (the protocol's closing stop, :meth:`sessions.loop.Loop.wind_down`), the person asked to relax;
 once the handle is still (``Loop.finished``; a protocol that ends with its cool-down gets
 there by itself) the torque is ramped out. Never a disarm at speed. The session's result is
-frozen when it is asked to end: the wind-down changes nothing it found.
+frozen when the torque ramp begins: the wind-down is part of the session (its closing phase).
 
 The controlled stop (:class:`StopRamp`) is a stop category 1, after IEC 60204-1: the motor
 stays under control while its torque is taken away, then the drive is disabled.
@@ -227,9 +227,7 @@ class Supervisor:
         self.prev_flags = lf
 
     def wind_down(self, status: EndStatus, reason: str) -> None:
-        """Freeze the session's result and bring the handle to rest; the torque ramp follows
-        once it is still (:meth:`check`)."""
-        self.freeze(status, reason)
+        """Bring the handle to rest; the torque ramp follows once it is still (:meth:`check`)."""
         self.ending = End(status, reason)
         self.host.enter_stopping()
         self.host.emit(Stopping(time.monotonic(), self.sid, reason))
