@@ -216,7 +216,7 @@ class SessionConfig(StrictModel):
         return 1.0 / self.rate
 
 
-_KEY = re.compile(r"[a-z_][a-z0-9_]*(\.[a-z_][a-z0-9_]*)*")
+_KEY = re.compile(r"[a-z_][a-z0-9_]*(\.[a-z0-9_]+)*")  # seeker.bracket, phases.2
 
 
 class ScenarioError(ValueError):

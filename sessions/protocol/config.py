@@ -183,10 +183,10 @@ class Protocol(_Model):
     def _order(self) -> Protocol:
         seeks = [i for i, ph in enumerate(self.phases) if ph.kind == "seek"]
         if len(seeks) > 1:
-            raise ValueError(f"phases[{seeks[1]}]: at most one seek phase (found {len(seeks)})")
+            raise ValueError(f"phases.{seeks[1]}: at most one seek phase (found {len(seeks)})")
         for i, ph in enumerate(self.phases[:-1]):
             if ph.kind == "cooldown":
-                raise ValueError(f"phases[{i}]: a cool-down ends the protocol: it must be last")
+                raise ValueError(f"phases.{i}: a cool-down ends the protocol: it must be last")
         return self
 
     @property
