@@ -184,6 +184,8 @@ def session_config(
 ) -> SessionConfig:
     """The session ``req`` asks for on ``rig``, for a user with this stored simulated
     profile and optimum. Raises :class:`RequestError`."""
+    if req.template_id is not None:  # the caller resolves it (server.service.templates)
+        raise RequestError("template_id", "not resolved into a protocol: nothing started")
     machine = fit_limits(req.limits, rig.machine)
     user = UserConfig.model_validate(sim_profile) if sim_profile else UserConfig()
     seed = req.seed if req.seed is not None else int(time.time() * 1000) % 2**31

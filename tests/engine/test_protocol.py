@@ -15,13 +15,14 @@ import math
 import numpy as np
 import pytest
 
-from sessions.config import ScenarioError, SessionConfig, parse_session_config
+from sessions.config import MachineConfig, ScenarioError, SessionConfig, parse_session_config
 from sessions.loop import Loop
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.protocol.analysis import phase_spans, summarize_phase
 from sessions.protocol.config import REST_VELOCITY, STOP_DECELERATION, Protocol
 from sessions.protocol.cues import CuedPerson
+from sessions.requests import RequestError, Rig, SessionStart, session_config
 from sessions.simulation import SimulationResult, run_simulation
 
 HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
@@ -218,3 +219,22 @@ def test_the_duration_is_the_protocols_unless_given_and_never_shorter() -> None:
         session(FULL, duration=60.0)
     again = SessionConfig.model_validate(cfg.model_dump())  # as stored and read back
     assert again == cfg
+
+
+def test_a_trainers_request_with_a_protocol() -> None:
+    rig = Rig("sim", MachineConfig(), 1000.0, has_torque_sensor=True)
+    req = SessionStart(user_id=1, protocol=Protocol.model_validate(FULL))
+    cfg = session_config(req, rig, optimum=3.0)
+    lo, mid, hi = cfg.seeker.bracket
+    assert (lo, mid, hi) == pytest.approx((1.8, 3.0, 4.5))  # around the stored optimum
+    assert cfg.duration == math.ceil(cfg.protocol.longest((lo, hi), 15.0))  # type: ignore[union-attr]
+    with pytest.raises(RequestError) as err:  # a given duration must let it finish
+        session_config(req.model_copy(update={"duration": 60.0}), rig)
+    assert err.value.field == "duration"
+    fast = {"phases": [{"kind": "warmup", "velocity": 5.0}]}  # above 1.5 × the optimum
+    with pytest.raises(RequestError) as err:
+        session_config(SessionStart(user_id=1, protocol=fast), rig, optimum=3.0)
+    assert err.value.field == "protocol.phases.0.velocity" and "γ3" in err.value.reason
+    with pytest.raises(RequestError) as err:  # a template is resolved by the caller, or refused
+        session_config(SessionStart(user_id=1, template_id=3), rig)
+    assert err.value.field == "template_id"
