@@ -17,5 +17,5 @@ from testing.server import start_server as _start  # noqa: E402
 __all__ = ["ServerProcess", "cpu_seconds", "peak_rss_mb", "start_server"]
 
 
-def start_server(*args: str) -> ServerProcess:
-    return _start(Path(tempfile.mkdtemp(prefix="ergoseek-bench-")), *args)
+def start_server(*args: str, env: dict[str, str] | None = None) -> ServerProcess:
+    return _start(Path(tempfile.mkdtemp(prefix="ergoseek-bench-")), *args, env=env)

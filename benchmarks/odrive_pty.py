@@ -34,9 +34,15 @@ from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
 
 
+def odrive(path: str, **kw: float) -> MachineSpec:
+    """The emulated rig's drive (its motor's torque constant)."""
+    kt = EmulatorConfig().torque_constant
+    return MachineSpec(kind="odrive", device=path, torque_constant=kt, **kw)  # type: ignore[arg-type]
+
+
 def free_run(path: str, seconds: float) -> dict[str, float]:
     cfg = parse_session_config({"duration": seconds + 10, "seeker": {"kind": "fixed"}})
-    m = make_machine(MachineSpec(kind="odrive", device=path))
+    m = make_machine(odrive(path))
     m.connect()
     m.arm(cfg)
     loop = Loop(cfg)
@@ -109,9 +115,7 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     with EmulatorProcess(EmulatorConfig()) as emu:
         limits = {"reply_timeout": args.timeout, "watchdog_timeout": args.watchdog}
-        spec = MachineSpec(
-            kind="odrive", device=emu.path, **{k: v for k, v in limits.items() if v is not None}
-        )
+        spec = odrive(emu.path, **{k: v for k, v in limits.items() if v is not None})
         out: dict[str, object] = dict(free_run(emu.path, args.seconds))
         out["paced"] = {
             f"{rate:g}": paced(emu.path, args.seconds, rate, not args.no_realtime, spec)

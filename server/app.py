@@ -16,17 +16,20 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import AsyncIterator
+from pathlib import Path
 
 from fastapi import FastAPI
 
-from server import api
+from server import api, guard
 from server.api.health import VERSION
 from server.runtime import Runtime
-from server.security import LoginLimiter
+from server.security import LoginLimiter, device_key
 from server.service import LiveHub, MachineService
+from server.service.accounts import LiveGate
 from server.settings import Settings
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.store import Store, display_url, open_server_store
+from sessions.store.database import sqlite_path
 
 log = logging.getLogger("ergoseek.server")
 
@@ -37,6 +40,12 @@ def _emulator(settings: Settings) -> EmulatorProcess | None:
         return None
     spec = settings.machine_spec("(the emulator's pty)")
     return EmulatorProcess(EmulatorConfig.for_rig(spec, settings.machine_config()))
+
+
+def _store_dir(store: Store) -> Path | None:
+    """Where the server may keep a file of its own: beside the SQLite database, if it is one."""
+    path = sqlite_path(store.url)
+    return path.parent if path is not None else None
 
 
 def _machine(
@@ -58,8 +67,13 @@ async def _running(app: FastAPI, settings: Settings) -> AsyncIterator[Runtime]:
     try:
         emulator = await asyncio.to_thread(_emulator, settings)
         machine = _machine(settings, store, hub, emulator)
-        limiter = LoginLimiter(settings.login_attempts, settings.login_window_s)
-        runtime = Runtime(settings, store, hub, machine, limiter, recovered, emulator)
+        key = await asyncio.to_thread(device_key, _store_dir(store))
+        limiter = LoginLimiter(settings.login_attempts, settings.login_window_s, key)
+        await asyncio.to_thread(store.tokens.purge)  # expired and revoked logins
+        gate = LiveGate(settings.live_max_per_account, settings.live_max_total)
+        runtime = Runtime(
+            settings, store, hub, machine, limiter, recovered, emulator, live_gate=gate
+        )
         await machine.open()
         if settings.dashboard:
             from webui.dashboard import start_dashboard
@@ -94,8 +108,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         "where a user's body mass is known), work J, times s. The dashboard converts for the "
         "person reading (rpm by default: `/api/v1/accounts/me/preferences`).",
         lifespan=lifespan,
+        docs_url=None,  # served by server.api.docs: local assets, a strict policy
+        redoc_url=None,
     )
     app.state.settings = settings
+    guard.install(app, settings)
     api.mount(app)
     if settings.dashboard:
         from webui.pages import router as pages

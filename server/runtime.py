@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from server.security import LoginLimiter
 from server.service import LiveHub, MachineService
+from server.service.accounts import AccountEvents, LiveGate
 from server.settings import Settings
 from sessions.store import Store
 
@@ -27,3 +28,6 @@ class Runtime:
     recovered: list[int] = field(default_factory=list)  # sessions a crash left running
     emulator: EmulatorProcess | None = None  # the emulated ODrive of ``odrive-emulator``
     dashboard: Dashboard | None = None
+    # changes to accounts, told at once to open connections (live sockets, the dashboard)
+    accounts: AccountEvents = field(default_factory=AccountEvents)
+    live_gate: LiveGate = field(default_factory=lambda: LiveGate(8, 64))  # (caps: settings)

@@ -8,7 +8,9 @@ There are no default passwords anywhere: accounts are created with ``ergoseek ac
 One Settings, one definition per setting: the machine's keys (``inertia``, ``max_torque``,
 ``max_velocity``, ``rate``) are the engine's fields (:class:`sessions.config.MachineConfig`,
 :class:`sessions.config.SessionConfig`), the drive's (``gear_ratio``, ``direction``,
-``reply_timeout``, ``watchdog_timeout``) are :class:`sessions.machine.MachineSpec`'s, taken with
+``torque_constant``, ``reply_timeout``, ``watchdog_timeout``, ``baudrate``,
+``vel_limit_tolerance``, ``firmware_policy``) and the simulator's ``sim_fault`` are
+:class:`sessions.machine.MachineSpec`'s, taken with
 their defaults, bounds and descriptions (the server adds only its own caps). The worker's
 options are nested as they are (``worker.cpu``, ``ERGOSEEK_WORKER__CPU``). What the service
 runs on is built from them: :meth:`Settings.rig`, :meth:`Settings.machine_spec`.
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import os
+import socket
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -27,7 +30,8 @@ from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from sessions.config import MachineConfig, SessionConfig
-from sessions.machine.spec import Direction, MachineSpec
+from sessions.machine.odrive.emulator.device import EmulatorConfig
+from sessions.machine.spec import Direction, FirmwarePolicy, MachineSpec, SimFault
 from sessions.requests import Rig
 from sessions.store.database import SQLITE_FILENAME
 from sessions.worker.options import LIVE_RATE_MAX, WorkerOptions
@@ -89,6 +93,11 @@ class Settings(BaseSettings):
     direction: Direction = owned(MachineSpec, "direction")
     reply_timeout: float = owned(MachineSpec, "reply_timeout")
     watchdog_timeout: float = owned(MachineSpec, "watchdog_timeout")
+    torque_constant: float | None = owned(MachineSpec, "torque_constant")
+    baudrate: int = owned(MachineSpec, "baudrate")
+    vel_limit_tolerance: float = owned(MachineSpec, "vel_limit_tolerance")
+    firmware_policy: FirmwarePolicy = owned(MachineSpec, "firmware_policy")
+    sim_fault: SimFault | None = owned(MachineSpec, "sim_fault")
     worker: WorkerOptions = Field(default_factory=WorkerOptions, description="the worker")
     # logins
     session_hours: float = Field(12.0, gt=0, le=24 * 30, description="login lifetime, h")
@@ -98,9 +107,52 @@ class Settings(BaseSettings):
     )
     login_attempts: int = Field(5, ge=1, description="failed logins allowed per window")
     login_window_s: float = Field(300.0, gt=0, description="failed-login window, s")
+    # what a client may send, and whom the server believes
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="Host names the server answers to besides its loopback names and bind "
+        "address ('*': any; '*.example.org': a domain's subdomains)",
+    )
+    max_body_bytes: int = Field(
+        128 * 1024,
+        ge=4096,
+        le=64 * 1024 * 1024,
+        description="largest request body accepted (413 above it, before it is read)",
+    )
+    proxy_headers: bool = Field(
+        False, description="believe X-Forwarded-For/-Proto from forwarded_allow_ips"
+    )
+    forwarded_allow_ips: list[str] = Field(
+        default_factory=list,
+        description="addresses of the reverse proxies trusted with forwarded headers",
+    )
+    estop_gate: bool = Field(
+        True,
+        description="answer POST /api/v1/machine/estop in a process of its own that owns the "
+        "listening socket, ahead of the web server (server/gate.py)",
+    )
+    estop_gate_nice: int = Field(
+        -10, ge=-20, le=19, description="the e-stop gate's scheduling niceness (if allowed)"
+    )
+    live_max_per_account: int = Field(
+        8, ge=1, le=1000, description="open /api/v1/live connections one account may hold"
+    )
+    live_max_total: int = Field(
+        64, ge=1, le=10_000, description="open /api/v1/live connections in all"
+    )
     # what is served
     dashboard: bool = Field(True, description="serve the login page and the viser dashboard")
     demo: bool = Field(False, description="demo mode: simulated users seeded")
+
+    def host_names(self) -> list[str]:
+        """Every Host the server answers to: its loopback names, its bind address (a
+        wildcard bind adds this machine's name), and ``allowed_hosts``."""
+        names = ["127.0.0.1", "localhost", "::1", "[::1]"]
+        if self.host in ("0.0.0.0", "::", ""):
+            names += [socket.gethostname(), socket.getfqdn()]
+        else:
+            names += [self.host, f"[{self.host}]" if ":" in self.host else self.host]
+        return list(dict.fromkeys([*names, *self.allowed_hosts]))
 
     def store_url(self) -> str | None:
         """The database: ``database_url``, else SQLite in ``data_dir``, else the store's
@@ -121,14 +173,21 @@ class Settings(BaseSettings):
         """What the worker drives: the simulator, or an ODrive at ``device`` (default: the
         configured one; the emulator's pty for ``odrive-emulator``)."""
         if self.machine == "sim":
-            return MachineSpec(kind="sim")
+            return MachineSpec(kind="sim", sim_fault=self.sim_fault)
+        torque_constant = self.torque_constant
+        if torque_constant is None and self.machine == "odrive-emulator":
+            torque_constant = EmulatorConfig.torque_constant  # the emulated motor's
         return MachineSpec(
             kind="odrive",
             device=device or self.device,
             gear_ratio=self.gear_ratio,
             direction=self.direction,
+            torque_constant=torque_constant,
             reply_timeout=self.reply_timeout,
             watchdog_timeout=self.watchdog_timeout,
+            baudrate=self.baudrate,
+            vel_limit_tolerance=self.vel_limit_tolerance,
+            firmware_policy=self.firmware_policy,
         )
 
     def rig(self, spec: MachineSpec) -> Rig:
@@ -136,9 +195,19 @@ class Settings(BaseSettings):
         return Rig(self.machine, self.machine_config(), self.rate, spec.has_torque_sensor)
 
     @model_validator(mode="after")
+    def _proxy(self) -> Settings:
+        if self.proxy_headers and not self.forwarded_allow_ips:
+            raise ValueError("proxy_headers needs forwarded_allow_ips (the proxies' addresses)")
+        return self
+
+    @model_validator(mode="after")
     def _drive(self) -> Settings:
+        if self.machine == "odrive" and not self.device:
+            return self  # the command line asks for --device first
         if self.machine != "sim":  # the drive's settings must make a spec (checked now, not later)
             self.machine_spec(self.device or "(the emulator's pty)")
+        elif self.sim_fault is not None:
+            self.machine_spec()
         return self
 
     @field_validator("device")

@@ -52,6 +52,7 @@ FLAG_STOPPING = 4  # the worker's controlled stop
 FLAG_ESTOP = 8  # the e-stop's zero-torque record
 FLAG_FAULT = 16  # a machine fault's zero-torque record
 FLAG_PASSIVITY = 32  # W(t) < -c²
+FLAG_CATCHUP = 64  # a period the worker missed, stepped late with the torque the drive held
 FLAGS: dict[int, str] = {
     TORQUE_LIMIT: "torque limit",
     VELOCITY_LIMIT: "velocity limit",
@@ -59,6 +60,7 @@ FLAGS: dict[int, str] = {
     FLAG_ESTOP: "e-stop",
     FLAG_FAULT: "fault",
     FLAG_PASSIVITY: "passivity",
+    FLAG_CATCHUP: "caught up",
 }
 ZERO_TORQUE_FLAGS = FLAG_ESTOP | FLAG_FAULT  # records that end in zero torque at once
 FLAGS_LEGEND = ", ".join(f"{bit} {name}" for bit, name in FLAGS.items())

@@ -23,6 +23,10 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 
+SEED_LIMIT = 2**63  # seeds are 0 ≤ seed < 2^63: numpy's SeedSequence takes them, and every
+# database's 64-bit integer holds them
+
+
 class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -143,7 +147,9 @@ class SessionConfig(StrictModel):
         description="s; with a protocol, the longest it may take (default: the protocol's own)",
     )
     rate: Positive = Field(1000.0, ge=50.0, le=20000.0, description="loop rate, Hz")
-    seed: int = Field(1, ge=0, description="seeds every random process of the simulated user")
+    seed: int = Field(
+        1, ge=0, lt=SEED_LIMIT, description="seeds every random process of the simulated user"
+    )
     machine: MachineConfig = MachineConfig()
     user: UserConfig = UserConfig()
     controller: ControllerConfig = ControllerConfig()

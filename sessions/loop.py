@@ -63,8 +63,12 @@ class Loop:
         self.row = (0.0, q0, w0, ref.wd, ref.ad, 0.0, 0.0, 0.0, 0.0, ref.target)
         self.stage = ref.phase
 
-    def step(self, q: float, w: float, tau_measured: float = math.nan) -> float:
-        """One period: the measured state in, the motor torque to apply out."""
+    def step(
+        self, q: float, w: float, tau_measured: float = math.nan, held: float | None = None
+    ) -> float:
+        """One period: the measured state in, the motor torque to apply out. ``held``: this
+        period has passed already (the worker missed it) and the drive applied ``held`` over
+        it; the step accounts for it with that torque (docs/engine.md, missed periods)."""
         dt = self.dt
         t = self.k * dt
         command, apply, commit, add_work, tell = self._calls
@@ -75,6 +79,8 @@ class Loop:
         e = w - wd  # (3)
         u_cmd = command(e, ad, tau_measured)
         u = apply(u_cmd, w)
+        if held is not None:  # the observer (28) and the record see what was applied
+            u = u_cmd = held
         tau = commit(e, ad, tau_measured, u, u_cmd, dt)
         p = surrogate_power(wd) if self.surrogate else modified_power(tau, wd, self.rho)
         work = add_work(tau, w, dt)

@@ -29,6 +29,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from sessions.config import (
+    SEED_LIMIT,
     ControllerConfig,
     MachineConfig,
     SeekerConfig,
@@ -82,7 +83,9 @@ class SessionStart(Request):
     controller: ControllerConfig | None = None
     seeker: SeekerConfig | None = None
     limits: LimitsIn | None = None
-    seed: int | None = Field(None, ge=0, description="simulated machine: the user's noise seed")
+    seed: int | None = Field(
+        None, ge=0, lt=SEED_LIMIT, description="simulated machine: the user's noise seed"
+    )
     protocol: Protocol | None = Field(
         None, description="the phases to run (SI: rad/s, s); none: one seek phase"
     )

@@ -40,6 +40,13 @@ VIEWPORT = {"width": 1500, "height": 950}
 TRAINER = "demo"
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 UI_TIMEOUT = 30_000  # ms, for anything the page must show
+WORD_JOINER = "\u2060"  # invisible; the dashboard's escaping puts it into URLs and addresses
+# Records every Content-Security-Policy violation of a page (add it with add_init_script).
+CSP_RECORDER = """
+window.__csp = [];
+document.addEventListener('securitypolicyviolation', e => window.__csp.push(
+  {directive: e.effectiveDirective, blocked: e.blockedURI, sample: e.sample}));
+"""
 
 
 class DemoServer(ServerProcess):
@@ -166,19 +173,29 @@ def set_number(page: Page, label: str, value: float) -> None:
     box.press("Tab")
 
 
+def paragraphs(page: Page) -> list[str]:
+    """The text of every paragraph, as a reader sees it (no invisible word joiners)."""
+    return [t.replace(WORD_JOINER, "") for t in page.locator("p").all_inner_texts()]
+
+
 def wait_text(page: Page, pattern: str, timeout_ms: int = UI_TIMEOUT) -> re.Match[str]:
     """Wait until a paragraph matches ``pattern``; returns the match."""
     rx = re.compile(pattern)
     deadline = time.monotonic() + timeout_ms / 1e3
     while True:
-        for text in page.locator("p").all_inner_texts():
+        for text in paragraphs(page):
             m = rx.search(text)
             if m:
                 return m
         if time.monotonic() > deadline:
-            shown = "\n".join(page.locator("p").all_inner_texts())
+            shown = "\n".join(paragraphs(page))
             raise AssertionError(f"no paragraph matched {pattern!r} in:\n{shown}")
         time.sleep(0.2)
+
+
+def csp_violations(page: Page) -> list[dict[str, str]]:
+    """The CSP violations the page reported (:data:`CSP_RECORDER` must be installed)."""
+    return list(page.evaluate("window.__csp || []"))
 
 
 Readout = dict[str, float | None]

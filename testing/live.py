@@ -15,7 +15,11 @@ from typing import Any
 import numpy as np
 
 from sessions.config import SessionConfig, parse_session_config
+from sessions.machine import MachineSpec
+from sessions.machine.odrive.emulator import EmulatorConfig
 from sessions.worker import Event, RingReader, SessionEnded, Worker
+
+EMULATED_KT = EmulatorConfig().torque_constant  # the emulated motor's torque constant, N·m/A
 
 # A Hill user found by Brent in a few seconds: fast filter, short windows, noise-free.
 QUICK_SEEK: dict[str, Any] = {
@@ -35,6 +39,11 @@ QUICK_SEEK: dict[str, Any] = {
 def scenario(**over: Any) -> SessionConfig:
     """QUICK_SEEK with top-level keys replaced (nested dicts replace whole sections)."""
     return parse_session_config({**QUICK_SEEK, **over})
+
+
+def odrive(device: str, **kw: Any) -> MachineSpec:
+    """An ODrive spec for the emulated rig at ``device`` (its motor's torque constant)."""
+    return MachineSpec(kind="odrive", device=device, **{"torque_constant": EMULATED_KT, **kw})
 
 
 @dataclass

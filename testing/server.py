@@ -228,6 +228,8 @@ def worker_pid(server_pid: int) -> int | None:
             stat = (entry / "stat").read_text()
             ppid = int(stat.rsplit(")", 1)[1].split()[1])
             cmdline = (entry / "cmdline").read_bytes()
-            if ppid == server_pid and b"multiprocessing" in cmdline and b"spawn_main" in cmdline:
+            gate = (entry / "comm").read_text().strip() == "ergoseek-gate"  # (the e-stop gate)
+            spawned = b"multiprocessing" in cmdline and b"spawn_main" in cmdline
+            if ppid == server_pid and spawned and not gate:
                 return int(entry.name)
     return None

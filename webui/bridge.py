@@ -1,4 +1,5 @@
-"""How the dashboard's GUI code, which runs on viser's threads, reaches the web process.
+"""How the dashboard's GUI code, which runs on viser's threads, reaches the web process, and
+who each browser is.
 
 viser runs its own asyncio loop in a daemon thread and calls plain (non-async) GUI callbacks
 on its thread pool. Nothing here ever blocks viser's loop: callbacks that act are plain
@@ -6,11 +7,12 @@ functions (so they run on viser's pool), and they hand the action to the web pro
 loop, where :class:`server.service.MachineService` lives (it is not thread-safe: its worker
 pipe and session state belong to that loop). Store calls run on the calling pool thread.
 
-Who clicked: viser's ``ClientHandle`` carries no request, so the proxy (``webui.proxy``) adds
-two headers to its upstream connection: a per-process secret and the account id. A callback
-that acts looks the clicking connection up and checks both; a connection that did not come
-through the proxy (e.g. a local process talking to viser's port directly) can watch but never
-act.
+Who: viser's ``ClientHandle`` carries no request, so the proxy (:mod:`webui.proxy`) adds
+headers to its upstream connection — the per-process secret (which the upstream's handshake
+gate, :mod:`webui.upstream`, already required), the account id, its login and its role.
+:meth:`Bridge.identify` reads them once, when the browser's own GUI is built; that GUI is the
+browser's alone (``client.gui``), so a click on it is that account's. Actions other than the
+E-STOP check the account in the store again (still enabled, still a trainer).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import hmac
 import logging
 import secrets
 from collections.abc import Callable, Coroutine
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import viser
@@ -28,14 +31,30 @@ from server.runtime import Runtime
 from server.service import MachineService
 from sessions.codes import RANK
 from sessions.store import AccountRecord, NotFoundError, Store
+from webui.upstream import PROXY_HEADER
 
 log = logging.getLogger("ergoseek.dashboard")
 
-PROXY_HEADER = "x-ergoseek-proxy"
 ACCOUNT_HEADER = "x-ergoseek-account"
+LOGIN_HEADER = "x-ergoseek-login"
+ROLE_HEADER = "x-ergoseek-role"
 ACTION_TIMEOUT = 20.0  # s: a start waits for the worker (up to 10 s) and the store
 
 T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Who:
+    """The account behind one browser's dashboard, as the proxy vouched for it."""
+
+    account_id: int
+    login: str
+    role: str
+
+    @property
+    def trainer(self) -> bool:
+        """Trainers and admins get the controls; viewers do not."""
+        return RANK.get(self.role, -1) >= RANK["trainer"]
 
 
 class Bridge:
@@ -73,35 +92,38 @@ class Bridge:
 
     # -- who is asking ---
     def upstream_headers(self, account: AccountRecord) -> dict[str, str]:
-        return {PROXY_HEADER: self.secret, ACCOUNT_HEADER: str(account.id)}
+        return {
+            PROXY_HEADER: self.secret,
+            ACCOUNT_HEADER: str(account.id),
+            LOGIN_HEADER: account.login,
+            ROLE_HEADER: account.role,
+        }
 
-    def proxied_account_id(self, server: viser.ViserServer, client_id: int | None) -> int | None:
-        """The account id the proxy vouched for on this viser connection (no I/O)."""
-        if client_id is None:
-            return None
+    def identify(self, server: viser.ViserServer, client_id: int) -> Who | None:
+        """The account the proxy vouched for on this viser connection (no I/O); None if the
+        connection did not come through the proxy or viser's internals changed."""
         try:
             conn = server._websock_server._live_connections.get(client_id)  # type: ignore[attr-defined]
             headers = conn.request.headers if conn is not None else None
-        except AttributeError:  # a viser without these internals: nobody may act
-            log.error("viser internals changed: dashboard actions are refused")
+        except AttributeError:  # a viser without these internals: nobody is trusted
+            log.error("viser internals changed: dashboards get no controls")
             return None
-        if headers is None:
-            return None
-        if not hmac.compare_digest(headers.get(PROXY_HEADER, ""), self.secret):
+        if headers is None or not hmac.compare_digest(headers.get(PROXY_HEADER, ""), self.secret):
             return None
         try:
-            return int(headers.get(ACCOUNT_HEADER, ""))
+            account_id = int(headers.get(ACCOUNT_HEADER, ""))
         except ValueError:
             return None
-
-    def trainer(self, server: viser.ViserServer, client_id: int | None) -> AccountRecord | None:
-        """The clicking account if it may act (trainer or admin, enabled); store I/O: call it
-        from a thread."""
-        account_id = self.proxied_account_id(server, client_id)
-        if account_id is None:
+        role = headers.get(ROLE_HEADER, "")
+        if role not in RANK:
             return None
+        return Who(account_id, headers.get(LOGIN_HEADER, "?"), role)
+
+    def trainer(self, who: Who) -> AccountRecord | None:
+        """The account if it may act now (trainer or admin, enabled); store I/O: call it
+        from a thread."""
         try:
-            account = self.store.accounts.get(account_id)
+            account = self.store.accounts.get(who.account_id)
         except NotFoundError:
             return None
         if account.disabled or RANK[account.role] < RANK["trainer"]:

@@ -241,9 +241,26 @@ def seeker_range(evaluations: Sequence[tuple[float, float]]) -> tuple[float, flo
     return (lo - pad, hi + pad)
 
 
-def seeker_scales(evaluations: Sequence[tuple[float, float]]) -> dict[str, up.Scale]:
+def seeker_x_range(
+    evaluations: Sequence[tuple[float, float]], bracket: tuple[float, float] | None
+) -> tuple[float, float]:
+    """The velocity axis: every candidate and the bracket, with 5 % of their spread around
+    them. (Explicit: viser 1.1.1's client keeps an auto x range *relative* to the previous
+    data, which leaves a chart whose x values move as the seeker's do showing the wrong
+    stretch.)"""
+    xs = [c for c, _ in evaluations] + list(bracket or ())
+    if not xs:
+        return (0.0, 1.0)
+    lo, hi = min(xs), max(xs)
+    pad = max(0.05 * (hi - lo), 0.05)
+    return (lo - pad, hi + pad)
+
+
+def seeker_scales(
+    evaluations: Sequence[tuple[float, float]], bracket: tuple[float, float] | None = None
+) -> dict[str, up.Scale]:
     return {
-        "x": up.Scale(time=False),
+        "x": up.Scale(time=False, auto=False, range=seeker_x_range(evaluations, bracket)),
         "y": up.Scale(auto=False, range=seeker_range(evaluations)),
     }
 

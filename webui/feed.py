@@ -4,11 +4,14 @@
         takes the pending samples and events (O(1), no copies of the ring), and every 0.25 s
         the machine status (which must be read on that loop), then hands them to
     Feed.apply (one dedicated thread): the bounded live window, the seeker's progress, then
-    each dashboard view with a browser connected (viser handle updates are thread-safe).
+    the shared picture once (3D machine, live charts: :class:`webui.views.SharedView`) and
+    each connected browser's own dashboard (:class:`webui.views.ClientView`: status, log,
+    buttons, seeker), text about six times a second and only what changed. (viser handle
+    updates are thread-safe.)
 
 The task awaits the thread, so a slow render never piles up work: the subscription keeps at
 most its backlog (2 s) and drops the oldest samples, and the web process's loop only ever
-spends microseconds per tick here. Views without a browser are skipped entirely.
+spends microseconds per tick here. With no browser connected nothing is rendered.
 """
 
 from __future__ import annotations
@@ -27,14 +30,16 @@ import numpy as np
 
 from server.service import ActiveSession, LiveHub, MachineService, MachineStatus, Subscription
 from webui.charts import SAMPLE_RATE, LiveWindow
+from webui.escape import Markdown, md
 from webui.progress import SeekerProgressView
 
 if TYPE_CHECKING:
-    from webui.views import View
+    from webui.views import ClientView, SharedView
 
 log = logging.getLogger("ergoseek.dashboard")
 
 TICK = 0.04  # s: 25 chart frames per second
+TEXT_EVERY = 4  # ticks between text updates (about 6 a second)
 STATUS_EVERY = 0.25  # s between machine status reads
 LOG_LINES = 8
 
@@ -58,7 +63,7 @@ class LiveState:
     status_version: int = 0
     active: ActiveSession | None = None
     last_finished: tuple[int, str] | None = None  # (session id, status)
-    log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES))
+    log: deque[Markdown] = field(default_factory=lambda: deque(maxlen=LOG_LINES))
     log_version: int = 0
 
     @property
@@ -68,30 +73,37 @@ class LiveState:
         usually not in it; the machine's state says it.)"""
         return self.active is None and self.status is not None and not self.status.armed
 
-    def note(self, text: str) -> None:
-        self.log.appendleft(f"{time.strftime('%H:%M:%S')} {text}")
+    def note(self, text: Markdown) -> None:
+        self.log.appendleft(md("{} {}", time.strftime("%H:%M:%S"), text))
         self.log_version += 1
 
 
-def describe_event(frame: dict[str, Any]) -> str | None:
-    """One log line for the events a trainer should see."""
+def _number(value: Any) -> str:
+    return format(value, ".3g") if isinstance(value, int | float) else str(value)
+
+
+def describe_event(frame: dict[str, Any]) -> Markdown | None:
+    """One log line for the events a trainer should see (reasons and faults come from the
+    worker and the device: escaped like any other text)."""
     kind = frame.get("kind")
     if frame.get("type") == "session_finished":
-        return f"session #{frame.get('session_id')} ended: {frame.get('status')}"
+        return md("session #{} ended: {}", frame.get("session_id"), frame.get("status"))
     if kind == "estop":
-        return "E-STOP: zero torque written, latched until reset"
+        return md("E-STOP: zero torque written, latched until reset")
     if kind == "fault":
-        return f"fault: {frame.get('reason')}"
+        return md("fault: {}", frame.get("reason"))
     if kind == "limit":
-        return f"{frame.get('limit')} limit hit ({frame.get('value', 0):.3g})"
+        return md("{} limit hit ({})", frame.get("limit"), _number(frame.get("value", 0)))
     if kind == "stopping":
-        return f"stopping: {frame.get('reason')}"
+        return md("stopping: {}", frame.get("reason"))
     if kind == "reset":
-        return "reset" + (f" failed: {frame['fault']}" if frame.get("fault") else ": cleared")
+        return (
+            md("reset failed: {}", frame["fault"]) if frame.get("fault") else md("reset: cleared")
+        )
     if kind == "lost":
-        return f"worker lost: {frame.get('reason')}"
+        return md("worker lost: {}", frame.get("reason"))
     if kind == "rejected":
-        return f"machine refused {frame.get('command')}: {frame.get('reason')}"
+        return md("machine refused {}: {}", frame.get("command"), frame.get("reason"))
     return None
 
 
@@ -104,13 +116,15 @@ class Feed:
         self,
         hub: LiveHub,
         machine: MachineService,
-        views: list[View],
+        shared: SharedView,
+        views: Callable[[], list[ClientView]],
         *,
         load_evaluations: Callable[[int], list[dict[str, Any]]],
         on_finished: Callable[[int, str], None],
     ) -> None:
         self.hub = hub
         self.machine = machine
+        self.shared = shared
         self.views = views
         self.load_evaluations = load_evaluations
         self.on_finished = on_finished
@@ -175,12 +189,19 @@ class Feed:
         for frame in snap.events:
             self._event(frame)
         self.tick += 1
-        for view in self.views:
-            if view.has_clients():
-                try:
-                    view.render(st, self.tick)
-                except Exception:
-                    log.exception("rendering a dashboard view")
+        if not self.shared.has_clients():
+            return
+        text = self.tick % TEXT_EVERY == 0
+        try:
+            self.shared.render(st, text)
+        except Exception:
+            log.exception("rendering the dashboard's shared picture")
+        picture = self.shared.picture(st) if text else None
+        for view in self.views():
+            try:
+                view.render(st, picture)
+            except Exception:
+                log.exception("rendering dashboard client %s", view.client_id)
 
     def _event(self, frame: dict[str, Any]) -> None:
         st = self.state

@@ -21,24 +21,31 @@ from server.api.deps import RuntimeDep
 from server.runtime import Runtime
 from server.security import COOKIE, identify
 from sessions.store import AccountRecord
-from webui import login_page
+from webui import csp, login_page
 from webui.proxy import dashboard_socket
 
 router = APIRouter(include_in_schema=False)
 
 CLIENT_BUILD = Path(viser.__file__).resolve().parent / "client" / "build"
-SECURITY_HEADERS = {
+HEADERS = {
     "Cache-Control": "no-store",
     "X-Frame-Options": "DENY",  # nobody frames a page with an E-STOP
-    # connect-src: viser's client would follow ``?websocket=URL`` to any server, so a link
-    # could show a trainer a fake machine; the page may only talk to this origin.
-    "Content-Security-Policy": (
-        "frame-ancestors 'none'; base-uri 'none'; form-action 'self'; "
-        "connect-src 'self' blob: data:"
-    ),
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "same-origin",
 }
+# The policies (webui.csp): viser's page may run its two scripts and nothing else, talk to
+# this origin only (viser's client would follow ``?websocket=URL`` to any server: a fake
+# machine); the login page its one script. Neither may be framed.
+NO_PAGE = {**HEADERS, "Content-Security-Policy": "default-src 'none'; frame-ancestors 'none'"}
+
+
+LOGIN_POLICY = csp.page_policy(login_page.render(None))
+
+
+def dashboard_headers() -> dict[str, str]:
+    return {**HEADERS, "Content-Security-Policy": csp.dashboard_policy()}
+
+
 TYPES = {
     ".html": "text/html; charset=utf-8",
     ".js": "application/javascript",
@@ -68,9 +75,9 @@ def _asset(relpath: str) -> tuple[bytes, bytes, str] | None:
 def _serve(request: Request, relpath: str) -> Response:
     found = _asset(relpath)
     if found is None:
-        return Response(status_code=404, headers=SECURITY_HEADERS)
+        return Response(status_code=404, headers=NO_PAGE)
     raw, zipped, kind = found
-    headers = {**SECURITY_HEADERS, "Vary": "Accept-Encoding"}
+    headers = {**dashboard_headers(), "Vary": "Accept-Encoding"}
     if "gzip" in request.headers.get("accept-encoding", ""):
         return Response(zipped, media_type=kind, headers={**headers, "Content-Encoding": "gzip"})
     return Response(raw, media_type=kind, headers=headers)
@@ -87,7 +94,8 @@ async def _account(request: Request, runtime: Runtime) -> AccountRecord | None:
 async def login(request: Request, runtime: RuntimeDep) -> HTMLResponse:
     account = None if "logout" in request.query_params else await _account(request, runtime)
     who = f"{account.login} ({account.role})" if account is not None else None
-    return HTMLResponse(login_page.render(who), headers=SECURITY_HEADERS)
+    page = login_page.render(who)
+    return HTMLResponse(page, headers={**HEADERS, "Content-Security-Policy": LOGIN_POLICY})
 
 
 @router.get("/dashboard")
@@ -100,7 +108,7 @@ async def dashboard(request: Request, relpath: str, runtime: RuntimeDep) -> Resp
     if await _account(request, runtime) is None:
         return RedirectResponse("/", status_code=303, headers={"Cache-Control": "no-store"})
     if runtime.dashboard is None:
-        return Response("the dashboard is not running", status_code=503, headers=SECURITY_HEADERS)
+        return Response("the dashboard is not running", status_code=503, headers=NO_PAGE)
     return await asyncio.to_thread(_serve, request, relpath)
 
 

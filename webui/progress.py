@@ -18,7 +18,8 @@ from typing import Any
 import viser
 
 from sessions.config import SessionConfig
-from webui.charts import seeker_chart, seeker_data, seeker_range, seeker_scales
+from webui.charts import seeker_chart, seeker_data, seeker_range, seeker_scales, seeker_x_range
+from webui.escape import Markdown, MarkdownBox, md, md_lines
 
 
 @dataclass
@@ -111,42 +112,44 @@ class SeekerProgressView:
             return 0.0
         return min(max(math.log(w0 / w) / math.log(w0 / goal), 0.0), 0.99)
 
-    def describe(self) -> str:
+    def describe(self) -> Markdown:
         """Markdown: seeker, evaluations, bracket, best, target, or the optimum when done."""
         if self.session_id is None and not self.evaluations:
-            return "Seeker: no session yet."
-        lines = [f"Seeker **{self.kind or '?'}** · {len(self.evaluations)} evaluations"]
+            return md("Seeker: no session yet.")
+        lines = [md("Seeker **{}** · {} evaluations", self.kind or "?", len(self.evaluations))]
         b = self.bracket
         if b is not None:
-            lines.append(f"Bracket: [{b[0]:.3f}, {b[1]:.3f}] rad/s")
+            lines.append(md("Bracket: [{:.3f}, {:.3f}] rad/s", b[0], b[1]))
         best = self.best
         if best is not None:
-            lines.append(f"Best so far: {best[0]:.3f} rad/s at {best[1]:.3f} W")
+            lines.append(md("Best so far: {:.3f} rad/s at {:.3f} W", best[0], best[1]))
         if self.done and self.target is not None:
-            lines.append(f"**Optimum: {self.target:.3f} rad/s** (converged)")
+            lines.append(md("**Optimum: {:.3f} rad/s** (converged)", self.target))
         elif self.target is not None:
-            lines.append(f"Target: {self.target:.3f} rad/s")
-        return "  \n".join(lines)
+            lines.append(md("Target: {:.3f} rad/s", self.target))
+        return md_lines(lines)
 
 
 class SeekerPanel:
-    """The seeker's progress bar, its state in words and the power-vs-velocity chart."""
+    """The seeker's progress bar, its state in words and the power-vs-velocity chart (one
+    browser's: the bar is an input element, which only its own browser may hold)."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.progress = gui.add_progress_bar(0.0)
-        self.text = gui.add_markdown("Seeker: no session yet.")
+        self.text = MarkdownBox(gui, md("Seeker: no session yet."))
         self.chart = seeker_chart(gui)
         self._version = -1
-        self._range: tuple[float, float] | None = None
+        self._ranges: tuple[tuple[float, float], ...] | None = None
 
     def render(self, view: SeekerProgressView) -> None:
         if view.version == self._version:
             return
         self._version = view.version
         self.progress.value = round(100.0 * view.fraction, 1)
-        self.text.content = view.describe()
-        wanted = seeker_range(view.evaluations)
-        if wanted != self._range:
-            self._range = wanted
-            self.chart.scales = seeker_scales(view.evaluations)
-        self.chart.data = seeker_data(view.evaluations, view.bracket, view.best)
+        self.text.show(view.describe())
+        bracket = view.bracket
+        wanted = (seeker_range(view.evaluations), seeker_x_range(view.evaluations, bracket))
+        if wanted != self._ranges:
+            self._ranges = wanted
+            self.chart.scales = seeker_scales(view.evaluations, bracket)
+        self.chart.data = seeker_data(view.evaluations, bracket, view.best)

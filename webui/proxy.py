@@ -1,15 +1,25 @@
-"""``/dashboard`` WebSocket: checks the login and the Origin, then relays to the local viser
-server for the account's role.
+"""``/dashboard`` WebSocket: checks the login and the Origin, then relays to the dashboard's
+viser server (a Unix socket that needs this process's secret: :mod:`webui.upstream`), telling
+it who the account is (:meth:`webui.bridge.Bridge.upstream_headers`).
 
 - Refused before accept (HTTP 403 to the handshake) without a valid login (cookie or bearer
   token), with a cookie but no Origin, from another Origin, without viser's ``viser-v…``
-  subprotocol, or past :data:`MAX_CONNECTIONS`.
+  subprotocol, or past :data:`MAX_CONNECTIONS` in all or :data:`MAX_PER_ACCOUNT` for one
+  account.
 - The browser's subprotocol is echoed on accept and passed upstream (without it Chromium
   retries forever and viser rejects the version); upstream ``max_size`` is 64 MiB (the
   ``websockets`` default of 1 MiB kills the link on viser's first big message) and
-  ``compression=None``. Frames (binary: zstd msgpack + raw arrays) are relayed untouched.
-- The login is checked again every :data:`RECHECK_S`: a logout, an expired or revoked token,
-  a disabled account or a role change closes the connection (1008).
+  ``compression=None``. viser → browser frames (binary: zstd msgpack + raw arrays) are
+  relayed untouched; browser → viser frames only if they are what a browser sends
+  (:func:`webui.frames.admit`: its camera, a value update) and no faster than
+  :data:`FRAME_RATE` a second (bursts to :data:`FRAME_BURST`): anything else is dropped and
+  counted (logged once per connection).
+- An account demoted, disabled or deleted loses its open dashboards at once: the dashboard's
+  watch re-reads the accounts every second, or as soon as it is told
+  (:meth:`webui.dashboard.Dashboard.changed`), and :meth:`Connections.accounts_now` closes
+  (1008) every connection whose account is no longer as it was; the page reconnects and gets
+  what the account may see now. The login itself (logout, expiry, revocation) is checked
+  again every :data:`RECHECK_S`.
 - Either side closing closes the other; the upstream connection is always closed.
 - A browser that stops reading (one frame not taken in :data:`SEND_TIMEOUT_S`) is closed:
   viser keeps every frame for a slow client, so this bounds what a stuck tab costs; the
@@ -22,31 +32,81 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import Counter
+from dataclasses import dataclass, field
 
 from fastapi import WebSocket, status
 from starlette.websockets import WebSocketDisconnect
-from websockets.asyncio.client import ClientConnection, connect
+from websockets.asyncio.client import ClientConnection, unix_connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 from server.runtime import Runtime
 from server.security import COOKIE, bearer, identify, origin_allowed
 from sessions.store import AccountRecord, Store
+from webui.frames import admit
 
 log = logging.getLogger("ergoseek.dashboard")
 
 MAX_SIZE = 64 * 2**20  # bytes, per message from viser
-MAX_CONNECTIONS = 32
-RECHECK_S = 15.0
+MAX_CONNECTIONS = 32  # open dashboards in all
+MAX_PER_ACCOUNT = 8  # … and of one account (a trainer's tabs and devices)
+RECHECK_S = 5.0  # s between checks of the login itself (logout, expiry)
 OPEN_TIMEOUT = 5.0
 SEND_TIMEOUT_S = 10.0  # a browser that takes longer to accept one frame is dropped
 SUBPROTOCOL_PREFIX = "viser-v"
+UPSTREAM_URI = "ws://localhost/dashboard"  # (on the Unix socket: only its path matters)
+FRAME_RATE, FRAME_BURST = 200.0, 400.0  # frames/s a browser may send (orbiting: ≤ 60/s)
 
 
-class _Count:
-    open = 0
+@dataclass(eq=False)
+class Connection:
+    """One open dashboard socket: whose, and how it ends."""
+
+    account: AccountRecord
+    ended: asyncio.Event = field(default_factory=asyncio.Event)
+    refused: Counter[str] = field(default_factory=Counter)
+    tokens: float = FRAME_BURST
+    refilled: float = 0.0
+
+    def spend(self, now: float) -> bool:
+        """A token bucket: whether one more frame may pass now."""
+        self.tokens = min(FRAME_BURST, self.tokens + (now - self.refilled) * FRAME_RATE)
+        self.refilled = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+    def still(self, now: AccountRecord | None) -> bool:
+        """Whether the account is still as it was when this connection was let in."""
+        return now is not None and not now.disabled and now.role == self.account.role
 
 
-_count = _Count()
+class Connections:
+    """The open dashboard sockets (on the web loop only)."""
+
+    def __init__(self) -> None:
+        self._open: set[Connection] = set()
+
+    @property
+    def open(self) -> int:
+        return len(self._open)
+
+    def of(self, account_id: int) -> int:
+        return sum(1 for c in self._open if c.account.id == account_id)
+
+    def add(self, conn: Connection) -> None:
+        self._open.add(conn)
+
+    def remove(self, conn: Connection) -> None:
+        self._open.discard(conn)
+
+    def accounts_now(self, accounts: dict[int, AccountRecord]) -> None:
+        """End every connection whose account was demoted, disabled or deleted."""
+        for conn in list(self._open):
+            if not conn.still(accounts.get(conn.account.id)):
+                log.info("dashboard socket of %s closed: its account changed", conn.account.login)
+                conn.ended.set()
 
 
 def pick_subprotocol(ws: WebSocket) -> str | None:
@@ -78,13 +138,18 @@ async def dashboard_socket(ws: WebSocket, runtime: Runtime) -> None:
     if proto is None:
         await refuse(ws, "no viser subprotocol")
         return
-    if _count.open >= MAX_CONNECTIONS:
+    connections = dashboard.connections
+    if connections.open >= MAX_CONNECTIONS:
         await refuse(ws, "too many dashboards open")
+        return
+    if connections.of(account.id) >= MAX_PER_ACCOUNT:
+        await refuse(ws, f"too many dashboards open for {account.login}")
         return
     secret = bearer(ws) or ws.cookies.get(COOKIE) or ""
     try:
-        upstream = await connect(
-            dashboard.upstream(account.role),
+        upstream = await unix_connect(
+            dashboard.socket_path,
+            uri=UPSTREAM_URI,
             subprotocols=[proto],  # type: ignore[list-item]
             additional_headers=dashboard.bridge.upstream_headers(account),
             max_size=MAX_SIZE,
@@ -97,24 +162,34 @@ async def dashboard_socket(ws: WebSocket, runtime: Runtime) -> None:
         log.error("dashboard: viser did not accept the proxy (%s)", exc)
         await ws.close(code=status.WS_1011_INTERNAL_ERROR)
         return
-    _count.open += 1
+    conn = Connection(account)
+    connections.add(conn)
     try:
         await ws.accept(subprotocol=upstream.subprotocol or proto)
-        await relay(ws, upstream, runtime.store, secret, account)
+        await relay(ws, upstream, runtime.store, secret, conn)
     finally:
-        _count.open -= 1
+        connections.remove(conn)
         with contextlib.suppress(Exception):
             await upstream.close()
+        if conn.refused:
+            log.warning(
+                "dashboard socket of %s: %d frames refused %s",
+                account.login,
+                conn.refused.total(),
+                dict(conn.refused),
+            )
 
 
 async def relay(
-    ws: WebSocket, upstream: ClientConnection, store: Store, secret: str, account: AccountRecord
+    ws: WebSocket, upstream: ClientConnection, store: Store, secret: str, conn: Connection
 ) -> None:
     """Relay both ways until either side closes or the login ends; then close the other."""
+    account = conn.account
     tasks = {
-        asyncio.create_task(_browser_to_viser(ws, upstream), name="dashboard-in"),
+        asyncio.create_task(_browser_to_viser(ws, upstream, conn), name="dashboard-in"),
         asyncio.create_task(_viser_to_browser(ws, upstream, account), name="dashboard-out"),
         asyncio.create_task(_recheck(store, secret, account), name="dashboard-login"),
+        asyncio.create_task(_ended(conn), name="dashboard-account"),
     }
     code, reason, browser_gone = 1000, "", False
     try:
@@ -143,7 +218,11 @@ async def relay(
                     await ws.close(code=_closable(code), reason=reason[:120])
 
 
-async def _browser_to_viser(ws: WebSocket, upstream: ClientConnection) -> tuple[int, str]:
+async def _browser_to_viser(
+    ws: WebSocket, upstream: ClientConnection, conn: Connection
+) -> tuple[int, str]:
+    loop = asyncio.get_running_loop()
+    conn.refilled = loop.time()
     while True:
         msg = await ws.receive()
         if msg["type"] == "websocket.disconnect":
@@ -151,8 +230,15 @@ async def _browser_to_viser(ws: WebSocket, upstream: ClientConnection) -> tuple[
         data = msg.get("bytes")
         if data is None:
             data = msg.get("text")
-        if data is not None:
-            await upstream.send(data)
+        why = admit(data)
+        if why is None and not conn.spend(loop.time()):
+            why = f"more than {FRAME_RATE:.0f} frames/s"
+        if why is None:
+            await upstream.send(data)  # type: ignore[arg-type]
+            continue
+        if not conn.refused:
+            log.warning("dashboard socket of %s: frame refused (%s)", conn.account.login, why)
+        conn.refused[why] += 1
 
 
 async def _viser_to_browser(
@@ -179,6 +265,12 @@ async def _recheck(store: Store, secret: str, account: AccountRecord) -> tuple[i
         if now is None or now.disabled or now.role != account.role or now.id != account.id:
             log.info("dashboard socket of %s closed: login ended or changed", account.login)
             return (status.WS_1008_POLICY_VIOLATION, "login ended")
+
+
+async def _ended(conn: Connection) -> tuple[int, str]:
+    """Until the account changes (:meth:`Connections.accounts_now`)."""
+    await conn.ended.wait()
+    return (status.WS_1008_POLICY_VIOLATION, "account changed")
 
 
 def _closable(code: int) -> int:

@@ -1,64 +1,104 @@
-"""One dashboard on one viser server: the 3D machine in the middle, the live charts docked on
-the left, and on the right the tabs Live, History and (for trainers) Users.
+"""What a browser sees: one picture everyone shares, and a dashboard of its own.
 
-A view is built once; the feed thread calls :meth:`render` ~25 times a second while a browser
-is connected (charts and the 3D handle every tick, text about 6 times a second, each only
-when it changed)."""
+- :class:`SharedView` (``server.gui``, ``server.scene``), built once: the 3D machine in the
+  middle, and in the main panel the live readout and charts. Display only — no element a
+  browser could change (an input in the shared GUI would be every browser's: tested) — and
+  rendered once per tick for everyone (viser serialises each update once per browser anyway;
+  per-browser charts would cost the feed ~0.4 ms per browser per tick).
+- :class:`ClientView` (``client.gui``), built when a browser connects (viser calls
+  ``on_client_connect`` after its first camera message) from the account the proxy vouched for
+  (:meth:`webui.bridge.Bridge.identify`), and dropped when it leaves: the tabs Live, History
+  and — for trainers — Users, and the seeker's window. Its inputs exist only in that
+  browser's GUI, so a message from another connection cannot reach them: one trainer's
+  session setup is never another's, a viewer's History pick is that viewer's. A viewer's
+  view is built without any control at all.
+
+The feed thread (:mod:`webui.feed`) renders the shared view every tick (charts and the 3D
+handle when there is new data) and each client view about six times a second (status, log,
+buttons, seeker), each element only when its content changed. :class:`Picture` holds what
+all client views show alike, computed once per text tick.
+"""
 
 from __future__ import annotations
 
+import logging
 import math
+from dataclasses import dataclass
 
 import viser
 
-from sessions.store import SessionRecord, UserRecord
+from sessions.store import SessionRecord
+from webui.bridge import Who
 from webui.charts import LIVE, LiveCharts
 from webui.context import Context
+from webui.escape import Html, HtmlBox, Markdown, MarkdownBox, html, md, md_join, md_lines
 from webui.feed import LiveState
+from webui.frames import guard_updates
+from webui.layout import canvas_of, place
 from webui.progress import SeekerPanel
 from webui.scene import MachineScene
 from webui.tabs.history import HistoryTab
-from webui.tabs.live import LiveTab
+from webui.tabs.live import LiveTab, status_markdown
 from webui.tabs.users import UsersTab
 
-TEXT_EVERY = 4  # ticks between text updates
-CHARTS_WIDTH, MAIN_WIDTH = 540, 440  # px: the docked panels (charts left, tabs right)
-SEEKER_WIDTH, SEEKER_HEIGHT = 470, 390  # px: the seeker's window, floating bottom-left
+log = logging.getLogger("ergoseek.dashboard")
+
 LOGOUT_HTML = (
     '<div style="display:flex;justify-content:space-between;align-items:center;'
     'padding:2px 0 6px 0;font-size:0.85em">'
-    "<span>ergoseek · {role}</span>"
+    "<span>ergoseek · {} · {}</span>"
     '<a href="/?logout=1" role="button" aria-label="Log out" '
     'style="padding:3px 12px;border:1px solid #adb5bd;border-radius:4px;'
     'text-decoration:none;color:inherit">Log out</a></div>'
 )
 
 
-def readout(st: LiveState) -> str:
+def readout(st: LiveState) -> Markdown:
     row = st.window.last
     if row is None:
-        return "No live data yet: start a session."
+        return md("No live data yet: start a session.")
 
     def v(name: str, fmt: str) -> str:
         x = float(row[LIVE[name]])
         return format(x, fmt) if math.isfinite(x) else "—"
 
     measured = st.active is not None and st.active.cfg.controller.kind == "measured"
-    tau = "τ" if measured else "τ̂"
     u = f"{0.0:+.3f} N·m (disarmed)" if st.disarmed else f"{v('u_out', '+.3f')} N·m"
-    return (
-        f"t = {v('t', '.2f')} s · w = {v('w', '.3f')} rad/s · wd = {v('wd', '.3f')} rad/s · "
-        f"γ = {v('gamma', '.3f')} rad/s  \n"
-        f"u = {u} · {tau} = {v('tau', '+.3f')} N·m · "
-        f"p = {v('p', '.3f')} W · W = {v('W', '.2f')} J"
+    return md_lines(
+        [
+            md(
+                "t = {} s · w = {} rad/s · wd = {} rad/s · γ = {} rad/s",
+                v("t", ".2f"),
+                v("w", ".3f"),
+                v("wd", ".3f"),
+                v("gamma", ".3f"),
+            ),
+            md(
+                "u = {} · {} = {} N·m · p = {} W · W = {} J",
+                u,
+                "τ" if measured else "τ̂",
+                v("tau", "+.3f"),
+                v("p", ".3f"),
+                v("W", ".2f"),
+            ),
+        ]
     )
 
 
-class View:
-    def __init__(self, server: viser.ViserServer, ctx: Context, *, control: bool) -> None:
+@dataclass(frozen=True)
+class Picture:
+    """What every browser's own dashboard shows alike (markdown, escaped)."""
+
+    status: Markdown
+    log: Markdown
+
+
+class SharedView:
+    """The 3D machine and the live charts, the same for every browser."""
+
+    def __init__(self, server: viser.ViserServer, ctx: Context) -> None:
         self.server = server
         self.ctx = ctx
-        self.control = control
         gui = server.gui
         gui.configure_theme(
             show_share_button=False,
@@ -70,32 +110,12 @@ class View:
         server.initial_camera.position = (1.2, -1.6, 0.55)
         server.initial_camera.look_at = (0.1, 0.0, 0.05)
         self.scene = MachineScene(server.scene, float(ctx.settings.max_torque))
-
-        charts_panel = gui.add_panel()
-        with charts_panel.add_tab("Live charts", viser.Icon.CHART_LINE):
-            self.readout = gui.add_markdown("No live data yet.")
-            self.charts = LiveCharts(gui)
-        charts_panel.dock_left()
-        charts_panel.set_width(CHARTS_WIDTH)
-        seeker_panel = gui.add_panel()
-        with seeker_panel.add_tab("Seeker progress", viser.Icon.TARGET):
-            self.seeker = SeekerPanel(gui)
-        seeker_panel.float(x=12, y=-12, width=SEEKER_WIDTH, height=SEEKER_HEIGHT)
-
-        gui.add_html(LOGOUT_HTML.format(role="trainer controls" if control else "view only"))
         tabs = gui.add_tab_group()
-        with tabs.add_tab("Live", viser.Icon.ACTIVITY):
-            self.live = LiveTab(gui, server, ctx, control=control)
-        with tabs.add_tab("History", viser.Icon.HISTORY):
-            self.history = HistoryTab(gui, ctx)
-        self.users: UsersTab | None = None
-        if control:
-            with tabs.add_tab("Users", viser.Icon.USERS):
-                self.users = UsersTab(gui, server, ctx)
-        gui.main_panel.dock_right()
-        gui.main_panel.set_width(MAIN_WIDTH)
+        with tabs.add_tab("Live charts", viser.Icon.CHART_LINE):
+            self.readout = MarkdownBox(gui, md("No live data yet."))
+            self.charts = LiveCharts(gui)
+        guard_updates(gui)
         self._window_version = -1
-        self._readout = ""
 
     def has_clients(self) -> bool:
         """Any connection at all (viser lists a client in ``get_clients()`` only after its
@@ -103,7 +123,7 @@ class View:
         live = getattr(self.server._websock_server, "_live_connections", None)
         return bool(live) if live is not None else bool(self.server.get_clients())
 
-    def render(self, st: LiveState, tick: int) -> None:
+    def render(self, st: LiveState, text: bool) -> None:
         with self.server.atomic():
             if st.window_version != self._window_version:
                 self._window_version = st.window_version
@@ -115,21 +135,63 @@ class View:
                 self.scene.show(float(row[LIVE["q"]]), u, tau)
             if st.active is not None:
                 self.charts.label_user_torque(st.active.cfg.controller.kind == "measured")
-            if tick % TEXT_EVERY == 0:
-                text = readout(st)
-                if text != self._readout:
-                    self._readout = text
-                    self.readout.content = text
-                user = self.ctx.user_by_id(st.active.user_id) if st.active is not None else None
-                self.live.render(st, user.name if user is not None else None)
-                self.seeker.render(st.seeker)
+            if text:
+                self.readout.show(readout(st))
 
-    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
-        self.live.users_changed(options, select)
-        self.history.users_changed(options, select)
+    def picture(self, st: LiveState) -> Picture:
+        user = self.ctx.user_by_id(st.active.user_id) if st.active is not None else None
+        return Picture(
+            status=status_markdown(st, user.name if user is not None else None),
+            log=md_join("  \n", st.log) if st.log else md(" "),
+        )
+
+
+class ClientView:
+    """One browser's own dashboard; built on viser's thread pool when the browser connects."""
+
+    def __init__(self, client: viser.ClientHandle, who: Who, ctx: Context) -> None:
+        self.client = client
+        self.client_id = client.client_id
+        self.who = who
+        self.ctx = ctx
+        gui = client.gui
+        guard_updates(gui)
+        self.controls = gui.add_panel()
+        with self.controls.add_tab("Live", viser.Icon.ACTIVITY):
+            role = "trainer controls" if who.trainer else "view only"
+            self.account = HtmlBox(gui, logout_html(who, role))
+            self.live = LiveTab(gui, ctx, who)
+        with self.controls.add_tab("History", viser.Icon.HISTORY):
+            self.history = HistoryTab(gui, ctx)
+        self.users: UsersTab | None = None
+        if who.trainer:
+            with self.controls.add_tab("Users", viser.Icon.USERS):
+                self.users = UsersTab(gui, ctx, who)
+        self.seeker_panel = gui.add_panel()
+        with self.seeker_panel.add_tab("Seeker progress", viser.Icon.TARGET):
+            self.seeker = SeekerPanel(gui)
+        place(client, self.controls, self.seeker_panel, canvas_of(client))
+        ctx.background(self.history.load_user)
+        if who.trainer:
+            ctx.background(self.live._show_optimum)
+
+    def render(self, st: LiveState, picture: Picture | None) -> None:
+        """Feed thread: the seeker when it changed; the text when ``picture`` is given."""
+        with self.client.atomic():
+            if picture is not None:
+                self.live.render(st, picture.status, picture.log)
+            self.seeker.render(st.seeker)
+
+    def users_changed(self, options: tuple[str, ...]) -> None:
+        self.live.users_changed(options)
+        self.history.users_changed(options)
         if self.users is not None:
-            self.users.users_changed(options, select)
+            self.users.users_changed(options)
 
     def session_finished(self, record: SessionRecord) -> None:
         self.live.session_finished(record)
         self.history.session_finished(record)
+
+
+def logout_html(who: Who, role: str) -> Html:
+    return html(LOGOUT_HTML, who.login, role)

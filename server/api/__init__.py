@@ -8,6 +8,7 @@ from fastapi import FastAPI
 from server.api import (
     accounts,
     auth,
+    docs,
     errors,
     exports,
     health,
@@ -32,3 +33,4 @@ def mount(app: FastAPI) -> None:
     for router in ROUTERS:
         app.include_router(router)
     app.include_router(health.router)
+    docs.mount(app)

@@ -6,7 +6,7 @@ import asyncio
 
 from fastapi import APIRouter, HTTPException, Response
 
-from server.api.deps import Admin, StoreDep
+from server.api.deps import Admin, RuntimeDep, StoreDep
 from server.api.schemas import AccountIn, AccountPatch, Id
 from sessions.store import AccountRecord, Store
 
@@ -32,9 +32,17 @@ async def get_account(account_id: Id, store: StoreDep, _: Admin) -> AccountRecor
     "/{account_id}", response_model=AccountRecord, summary="Change role, disable, reset password"
 )
 async def patch_account(
-    account_id: Id, body: AccountPatch, store: StoreDep, _: Admin
+    account_id: Id, body: AccountPatch, store: StoreDep, runtime: RuntimeDep, _: Admin
 ) -> AccountRecord:
-    return await asyncio.to_thread(_patch, store, account_id, body)
+    record = await asyncio.to_thread(_patch, store, account_id, body)
+    for kind, given in (
+        ("role", body.role),
+        ("disabled", body.disabled),
+        ("password", body.password),
+    ):
+        if given is not None:  # open connections re-check their login now
+            runtime.accounts.changed(account_id, kind)  # type: ignore[arg-type]
+    return record
 
 
 def _patch(store: Store, account_id: int, body: AccountPatch) -> AccountRecord:
@@ -48,8 +56,11 @@ def _patch(store: Store, account_id: int, body: AccountPatch) -> AccountRecord:
 
 
 @router.delete("/{account_id}", status_code=204, summary="Delete an account (its sessions stay)")
-async def delete_account(account_id: Id, store: StoreDep, admin: Admin) -> Response:
+async def delete_account(
+    account_id: Id, store: StoreDep, runtime: RuntimeDep, admin: Admin
+) -> Response:
     if account_id == admin.id:
         raise HTTPException(409, detail="you cannot delete your own account")
     await asyncio.to_thread(store.accounts.delete, account_id)
+    runtime.accounts.changed(account_id, "deleted")
     return Response(status_code=204)

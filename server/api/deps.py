@@ -15,7 +15,6 @@ nothing may stand between an e-stop request and the machine but the login check.
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Awaitable, Callable
 from typing import Annotated
 
@@ -23,7 +22,13 @@ from fastapi import Depends, HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
 from server.runtime import Runtime
-from server.security import SAFE_METHODS, LoginLimiter, identify, origin_allowed, unauthorized
+from server.security import (
+    SAFE_METHODS,
+    LoginLimiter,
+    cookie_write_allowed,
+    identify_async,
+    unauthorized,
+)
 from server.service import LiveHub, MachineService
 from server.settings import Settings
 from sessions.codes import RANK, Role
@@ -68,14 +73,16 @@ LimiterDep = Annotated[LoginLimiter, Depends(get_limiter)]
 async def current_account(
     request: Request, store: StoreDep, settings: SettingsDep
 ) -> AccountRecord:
-    """The logged-in account; 401 otherwise, 403 for a cross-site change by cookie."""
-    account, how = await asyncio.to_thread(identify, request, store)
+    """The logged-in account; 401 otherwise, 403 for a change by cookie that does not come
+    from our own page (an Origin of ours is required: a missing one is refused)."""
+    known = getattr(request.state, "identity", None)  # the body guard's, for a request with one
+    account, how = known or await identify_async(request, store)
     if account is None:
         raise unauthorized("not logged in" if how == "none" else "login expired or revoked")
     if (
         how == "cookie"
         and request.method not in SAFE_METHODS
-        and not origin_allowed(request, settings.allowed_origins)
+        and not cookie_write_allowed(request, settings.allowed_origins)
     ):
         raise HTTPException(status.HTTP_403_FORBIDDEN, detail="cross-site request refused")
     request.state.account = account

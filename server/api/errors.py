@@ -20,15 +20,31 @@ def problem(status: int, detail: Any) -> JSONResponse:
     return JSONResponse(status_code=status, content={"detail": detail})
 
 
-def field_problem(field: str, reason: str) -> JSONResponse:
-    """422 for one field of the body (dotted path)."""
-    loc = ["body", *field.split(".")]
+def field_problem(field: str, reason: str, where: str = "body") -> JSONResponse:
+    """422 for one field (dotted path) of the body, the query or the path."""
+    loc = [where, *field.split(".")]
     return problem(422, [{"loc": loc, "msg": reason, "type": "value_error"}])
 
 
-async def _store_value(_: Request, exc: Exception) -> JSONResponse:
+def _where(request: Request, field: str) -> str:
+    """Whether ``field`` is one of the route's query or path parameters (else the body's)."""
+    head = field.split(".", 1)[0]
+    todo = [getattr(request.scope.get("route"), "dependant", None)]
+    while todo:  # the route's own parameters and its dependencies'
+        dependant = todo.pop()
+        if dependant is None:
+            continue
+        if head in {p.alias for p in dependant.query_params}:
+            return "query"
+        if head in {p.alias for p in dependant.path_params}:
+            return "path"
+        todo.extend(dependant.dependencies)
+    return "body"
+
+
+async def _store_value(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StoreValueError | RequestError)
-    return field_problem(exc.field, exc.reason)
+    return field_problem(exc.field, exc.reason, _where(request, exc.field))
 
 
 async def _not_found(_: Request, exc: Exception) -> JSONResponse:

@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Query, Response
 
 from server.api.deps import MachineDep, StoreDep, Trainer, Viewer
 from server.api.schemas import MAX_ID, Id, SetpointIn, Setpoints, UserIn, UserPatch
-from server.service.users import create_user, update_user
+from server.service.users import check_setpoint, create_user, update_user
 from sessions.store import Page, SetpointRecord, Store, UserRecord
 
 router = APIRouter(prefix="/api/v1/users", tags=["users"])
@@ -66,8 +66,9 @@ def _setpoints(store: Store, user_id: int) -> Setpoints:
     summary="Set a user's optimum by hand",
 )  # fmt: skip
 async def set_setpoint(
-    user_id: Id, body: SetpointIn, store: StoreDep, _: Trainer
+    user_id: Id, body: SetpointIn, store: StoreDep, machine: MachineDep, _: Trainer
 ) -> SetpointRecord:
+    check_setpoint(body.velocity, machine.rig)
     return await asyncio.to_thread(
         lambda: store.setpoints.record(user_id, body.velocity, power=body.power, seeker="manual")
     )

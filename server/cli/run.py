@@ -4,8 +4,10 @@ The session runs in the real-time worker process against the chosen machine: the
 (paced in real time) or an ODrive on a serial device (for instance the one
 ``ergoseek emulate-odrive`` prints). Progress is printed once a second, seeker evaluations as
 they happen, the summary and the loop timing at the end. Ctrl-C stops the session at once
-(zero torque; status ``stopped``). Exit status: 0 completed, 1 aborted or faulted, 2 bad input,
-130 stopped by Ctrl-C.
+(zero torque; status ``stopped``). Exit status: 0 completed, 1 aborted or faulted (or the
+machine refused to arm: one line on stderr says why, e.g. an uncalibrated axis, a wrong axis,
+an unsupported firmware, a drive setting that defeats a limit), 2 bad input, 130 stopped by
+Ctrl-C.
 """
 
 from __future__ import annotations
@@ -19,10 +21,13 @@ import time
 from typing import Any
 
 # The drive's settings, as flags: MachineSpec's fields (its defaults apply when not given).
-DRIVE_FLAGS: tuple[tuple[str, type, tuple[int, ...] | None, str], ...] = (
-    ("--baudrate", int, None, "odrive: UART baud rate"),
+DRIVE_FLAGS: tuple[tuple[str, type, tuple[int | str, ...] | None, str], ...] = (
+    ("--baudrate", int, None, "odrive: UART baud rate (default 115200; USB ignores it)"),
     ("--gear-ratio", float, None, "odrive: motor turns per handle turn"),
     ("--direction", int, (1, -1), "odrive: +1 or -1"),
+    ("--torque-constant", float, None, "odrive: the motor's torque constant, N·m/A (8.27/Kv)"),
+    ("--vel-limit-tolerance", float, None, "odrive: overspeed trips at this × vel_limit"),
+    ("--firmware-policy", str, ("supported", "probe"), "odrive: which firmware to accept"),
     ("--watchdog-timeout", float, None, "odrive: device watchdog, s"),
     ("--reply-timeout", float, None, "odrive: longest wait for a reply, s"),
 )
@@ -103,7 +108,10 @@ def run(args: argparse.Namespace) -> int:
             + (f", CPU {rt.cpu}" if rt.cpu is not None else "")
             + "".join(f"; {n}" for n in rt.notes)
         )
-        end, interrupted = _follow(worker, cfg, say)
+        end, interrupted, refused = _follow(worker, cfg, say)
+    if refused is not None:
+        print(f"ergoseek run: the machine refused the session: {refused}", file=sys.stderr)
+        return 1
     if end is None:
         print("ergoseek run: the session did not report its end", file=sys.stderr)
         return 1
@@ -113,8 +121,9 @@ def run(args: argparse.Namespace) -> int:
     return 0 if end.status == "completed" else 1
 
 
-def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool]:
-    """Run the session to its end, saying what happens; (its SessionEnded, interrupted)."""
+def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool, str | None]:
+    """Run the session to its end, saying what happens; (its SessionEnded, interrupted, why it
+    never started: the machine refused to arm, or the worker was lost first)."""
     reader = worker.open_reader()
     worker.start_session(cfg, f"run-{os.getpid()}")
     end = None
@@ -124,6 +133,10 @@ def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool]:
             for ev in worker.poll():
                 if ev.kind == "session_ended":
                     end = ev
+                elif (ev.kind == "rejected" and ev.command == "start") or (
+                    ev.kind == "lost" and end is None
+                ):
+                    return None, False, ev.reason
                 else:
                     _say_event(ev, say)
             batch = reader.read()
@@ -140,10 +153,15 @@ def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool]:
                 if ev.kind == "session_ended":
                     end = ev
             time.sleep(0.01)
-        return end, True
+        return end, True, None
     finally:
         reader.close()
-    return end, False
+    return end, False, None
+
+
+def _never_started(ev: Any) -> bool:
+    """The session will not run: the machine refused to arm, or the worker is gone."""
+    return (ev.kind == "rejected" and ev.command == "start") or ev.kind == "lost"
 
 
 def _say_event(ev: Any, say: Any) -> None:

@@ -45,6 +45,7 @@ class Subscription:
     pending: deque[np.ndarray] = field(default_factory=deque)  # blocks of ring rows
     seqs: deque[np.ndarray] = field(default_factory=deque)
     pending_n: int = 0
+    through: int = -1  # the newest sequence number queued for this client
     dropped: int = 0  # samples this client lost by being slow
     missed: int = 0  # samples the server lost from the ring (the same for every client)
     events: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=MAX_PENDING_EVENTS))
@@ -65,6 +66,7 @@ class LiveHub:
         self.loop_rate = loop_rate
         self.subscribers: set[Subscription] = set()
         self.session_id: int | None = None
+        self._last: tuple[int, np.ndarray] | None = None  # the newest record published
 
     def subscribe(self, rate: float) -> Subscription:
         rate = min(max(rate, 0.1), self.loop_rate)
@@ -79,6 +81,8 @@ class LiveHub:
 
     def publish_telemetry(self, seq: np.ndarray, data: np.ndarray, missed: int) -> None:
         """One batch of ring records (all columns), in order; never blocks."""
+        if len(seq):
+            self._last = (int(seq[-1]), data[-1].copy())
         for sub in self.subscribers:
             sub.missed += missed
             # every step-th sample, and always the ones that end in zero torque (e-stop, fault)
@@ -88,6 +92,7 @@ class LiveHub:
             if not keep.any():
                 continue
             rows, s = data[keep], seq[keep]
+            sub.through = int(s[-1])
             sub.pending.append(rows)
             sub.seqs.append(s)
             sub.pending_n += len(rows)
@@ -105,6 +110,27 @@ class LiveHub:
                     sub.pending_n -= extra
                     sub.dropped += extra
             sub.wake.set()
+
+    def publish_last(self, seq: int) -> None:
+        """A session's last record (the one that wrote zero torque) to every subscriber,
+        whatever its rate: everyone sees how it ended. (It must be the newest published.)"""
+        if self._last is None or self._last[0] != seq:
+            return
+        row, at = self._last[1][None, :], np.array([seq], np.int64)
+        for sub in self.subscribers:
+            if sub.through < seq:
+                sub.through = seq
+                sub.pending.append(row)
+                sub.seqs.append(at)
+                sub.pending_n += 1
+                sub.wake.set()
+
+    async def flush(self, timeout: float) -> None:
+        """Wait (at most ``timeout`` s) until every subscriber has sent what is pending."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while loop.time() < deadline and any(s.pending_n or s.events for s in self.subscribers):
+            await asyncio.sleep(0.01)
 
     def publish_event(self, frame: dict[str, Any]) -> None:
         for sub in self.subscribers:

@@ -24,6 +24,7 @@ from pydantic import BaseModel, Field
 
 from server.service.live import LiveHub
 from server.service.pump import Pump
+from server.service.reasons import one_line
 from server.service.session import ActiveSession, LiveSession
 from sessions.codes import phase_name
 from sessions.machine.spec import MachineSpec
@@ -117,14 +118,21 @@ class MachineService:
         self.pump.attach(worker)
         log.info("worker %s ready (%s)", worker.pid, ready.fault or "no fault" if ready else "")
 
-    async def close(self) -> None:
-        """Zero torque, the running session ends as stopped, the worker exits; nothing lost."""
+    async def halt(self, reason: str = "server shut down") -> None:
+        """Zero torque now; the running session ends as stopped for ``reason``, its last
+        records and its end stored and published (the first step of a shutdown, while the
+        live clients are still connected to see it)."""
         worker, pump = self.worker, self.pump
         if worker is not None and pump.session is not None:
             with contextlib.suppress(WorkerError):
-                worker.stop(immediate=True)
+                worker.stop(immediate=True, reason=reason)
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(pump.session.ended.wait(), 3.0)
+
+    async def close(self) -> None:
+        """Zero torque, the running session ends as stopped, the worker exits; nothing lost."""
+        worker, pump = self.worker, self.pump
+        await self.halt()
         await pump.stop()
         if worker is not None:
             events = await asyncio.to_thread(worker.shutdown)
@@ -170,12 +178,13 @@ class MachineService:
             worker.start_session(session.cfg, session.tag)
             await asyncio.wait_for(session.started.wait(), START_TIMEOUT)
         except (WorkerError, ValueError, TimeoutError) as exc:
-            reason = session.rejected or str(exc) or "the worker did not start the session"
+            reason = one_line(session.rejected or str(exc)) or "the worker did not start it"
             await self.pump.finish(session, "faulted", None, reason)
             raise BusyError(f"the machine refused the session: {reason}") from None
         if session.rejected is not None:
-            await self.pump.finish(session, "faulted", None, session.rejected)
-            raise BusyError(f"the machine refused the session: {session.rejected}")
+            reason = one_line(session.rejected)
+            await self.pump.finish(session, "faulted", None, reason)
+            raise BusyError(f"the machine refused the session: {reason}")
 
     def stop(self, session_id: int) -> None:
         """A controlled stop of the running session ``session_id`` (409 if it is not)."""
@@ -185,18 +194,55 @@ class MachineService:
         self._require_worker().stop()
 
     def estop(self) -> None:
-        """Zero torque at once; latched until :meth:`reset`."""
-        self._require_worker().estop()
+        """Zero torque at once; latched until :meth:`reset`. With no worker (lost, however it
+        went) nothing drives the motor: the e-stop holds as it is (the lost state is latched
+        too, until a reset), and it never fails."""
+        worker = self.worker
+        if worker is None or self.lost is not None:
+            log.warning("e-stop with the worker lost (%s): nothing drives the motor", self.lost)
+            return
+        try:
+            worker.estop()
+        except WorkerError as exc:  # it died just now: the pump records the end
+            log.warning("e-stop: %s; nothing drives the motor", exc)
 
     async def reset(self) -> None:
-        """Clear a latched e-stop or fault; a lost worker is replaced. Never starts motion."""
+        """Clear a latched e-stop or fault; a lost worker (killed, crashed, exited, unreachable)
+        is replaced, after its last events are recorded. Never starts motion; refused (409)
+        while a session runs on a healthy worker: a reset there would do nothing."""
         async with self._lock:
-            if self.worker is None or self.lost is not None:
-                if self.worker is not None:
-                    await asyncio.to_thread(self.worker.shutdown)
-                await self._spawn()
-                return
-            self.worker.reset()
+            worker = self.worker
+            healthy = (
+                worker is not None and self.lost is None and worker.state not in ("lost", "closed")
+            )
+            if healthy and self.active is not None:
+                raise BusyError(f"session {self.active.db_id} is running: stop it first")
+            if healthy:
+                try:
+                    worker.reset()
+                    return
+                except WorkerError:  # found gone on the way: replace it below
+                    pass
+            if worker is not None:
+                await self._retire(worker)
+            await self._spawn()
+
+    async def _retire(self, worker: Worker) -> None:
+        """Take down a worker that is gone or going, recording what it said last (a session
+        it was running ends aborted, its data kept). What is left of it cannot keep the
+        machine down: a failure taking it down is logged and the new worker starts anyway."""
+        pump = self.pump
+        pump.worker = None  # the pump stops polling it: a handle is used from one thread
+        try:
+            events = await asyncio.to_thread(worker.shutdown)
+        except Exception:
+            log.exception("taking down the lost worker")
+            events = []
+        pump.drain_ring()
+        for ev in events:
+            await pump.handle(ev)
+        if pump.session is not None:  # it never told: end the session from what was stored
+            await pump.finish(pump.session, "aborted", None, self.lost or "worker lost")
 
     def _require_worker(self) -> Worker:
         if self.worker is None or self.lost is not None:
@@ -214,7 +260,7 @@ class MachineService:
             backend=self.backend,
             state=state,
             armed=state in ("running", "stopping"),
-            fault=self.lost or (st.fault if st else None),
+            fault=one_line(self.lost or (st.fault if st else None)),
             session_id=active.db_id if active is not None else None,
             heartbeat_age_ms=(
                 st.heartbeat_age * 1e3 if st and st.heartbeat_age is not None else None

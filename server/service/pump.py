@@ -74,6 +74,14 @@ class Pump:
         self.reader = worker.open_reader("now")
         self.lost = None
 
+    def detach(self) -> None:
+        """Follow no worker (the service is replacing it); :attr:`lost` stays until
+        :meth:`attach`."""
+        self.worker = None
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None
+
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="ergoseek-pump")
 
@@ -162,6 +170,7 @@ class Pump:
             self._note(session, ev)
         elif isinstance(ev, SessionEnded) and mine:
             self.drain_ring()
+            self.hub.publish_last(ev.last_seq)  # the zero-torque record, to every client
             reason = None if ev.status == "completed" else ev.reason
             await self.finish(session, ev.status, ev.summary, reason)  # type: ignore[arg-type]
         elif isinstance(ev, WorkerLost):

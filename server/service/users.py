@@ -6,7 +6,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from sessions.config import UserConfig
-from sessions.requests import Finite, Request
+from sessions.requests import HEADROOM, Finite, Request, RequestError, Rig
 from sessions.store import Store, UserRecord
 
 
@@ -42,3 +42,17 @@ def create_user(store: Store, body: UserIn) -> UserRecord:
 def update_user(store: Store, user_id: int, patch: UserPatch) -> UserRecord:
     """Change what the patch sets, nothing else (store I/O: call it from a thread)."""
     return store.users.update(user_id, **patch.model_dump(exclude_unset=True))
+
+
+def check_setpoint(velocity: float, rig: Rig) -> float:
+    """A setpoint set by hand, if the machine can hold it with the headroom every setpoint
+    the policy picks keeps (:data:`sessions.requests.HEADROOM` of the velocity limit)."""
+    vmax = rig.machine.max_velocity
+    top = HEADROOM * vmax
+    if velocity > top:
+        raise RequestError(
+            "velocity",
+            f"{velocity:g} rad/s is above {top:g} rad/s ({HEADROOM:.0%} of the machine's "
+            f"velocity limit, {vmax:g} rad/s)",
+        )
+    return velocity

@@ -6,7 +6,7 @@ pseudo-terminal that the tests and the demo drive it against)."""
 from __future__ import annotations
 
 from sessions.machine.base import Machine, MachineError, MachineState
-from sessions.machine.spec import MachineSpec, check_controller
+from sessions.machine.spec import MachineSpec, SimFault, check_controller
 
 
 def make_machine(spec: MachineSpec) -> Machine:
@@ -17,7 +17,7 @@ def make_machine(spec: MachineSpec) -> Machine:
         return OdriveMachine(spec)
     from sessions.machine.sim import SimMachine
 
-    return SimMachine()
+    return SimMachine(spec.sim_fault)
 
 
 __all__ = [
@@ -25,6 +25,7 @@ __all__ = [
     "MachineError",
     "MachineSpec",
     "MachineState",
+    "SimFault",
     "check_controller",
     "make_machine",
 ]

@@ -58,6 +58,10 @@ class Machine:
 
     kind: ClassVar[str] = "machine"
     has_torque_sensor: ClassVar[bool] = False
+    # the plant moves on its own clock between writes (a real drive holds the last torque):
+    # a period the worker misses is real time the loop must account for. A simulator that
+    # advances one period per write is not free-running.
+    free_running: ClassVar[bool] = False
 
     def __init__(self) -> None:
         self.state = MachineState.UNCONNECTED

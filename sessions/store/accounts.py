@@ -17,11 +17,10 @@ from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import ConflictError, NotFoundError, StoreValueError
 from sessions.store.models import Account, ProtocolTemplate
+from sessions.store.passwords import check_password
 from sessions.store.records import AccountRecord
 
 _LOGIN = re.compile(r"[a-z0-9][a-z0-9._@-]*")
-PASSWORD_MIN = 8
-PASSWORD_MAX = 1024
 
 
 def _login(value: Any) -> str:
@@ -31,16 +30,6 @@ def _login(value: Any) -> str:
             "login", f"{login!r} may hold only letters, digits and . _ @ - (not first)"
         )
     return login
-
-
-def _password(value: Any) -> str:
-    if not isinstance(value, str):
-        raise StoreValueError("password", "must be a string")
-    if len(value) < PASSWORD_MIN:
-        raise StoreValueError("password", f"shorter than {PASSWORD_MIN} characters")
-    if len(value) > PASSWORD_MAX:
-        raise StoreValueError("password", f"longer than {PASSWORD_MAX} characters")
-    return value
 
 
 class AccountRepository:
@@ -56,7 +45,7 @@ class AccountRepository:
         name = _login(login)
         role = v.choice("role", role, ROLES)  # type: ignore[assignment]
         disabled = v.flag("disabled", disabled)
-        digest = self._hasher.hash(_password(password))
+        digest = self._hasher.hash(check_password(password, name, role))
         try:
             with self._db.session(write=True) as s:
                 if s.scalar(select(Account.id).where(Account.login == name)) is not None:
@@ -110,7 +99,12 @@ class AccountRepository:
             return AccountRecord.model_validate(row)
 
     def set_password(self, account_id: int, password: str) -> None:
-        digest = self._hasher.hash(_password(password))
+        """A new password, if the policy takes it for this account's login and role."""
+        account = self.get(account_id)
+        digest = self._hasher.hash(check_password(password, account.login, account.role))
+        self._store_digest(account_id, digest)
+
+    def _store_digest(self, account_id: int, digest: str) -> None:
         with self._db.session(write=True) as s:
             row = s.get(Account, account_id)
             if row is None:
@@ -132,8 +126,8 @@ class AccountRepository:
         record, digest = found
         if not self._verify(digest, str(password)) or record.disabled:
             return None
-        if self._hasher.check_needs_rehash(digest):
-            self.set_password(record.id, str(password))
+        if self._hasher.check_needs_rehash(digest):  # (a password that was let in before)
+            self._store_digest(record.id, self._hasher.hash(str(password)))
         return record
 
     def delete(self, account_id: int) -> None:

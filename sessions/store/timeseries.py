@@ -220,7 +220,8 @@ class TelemetryRepository:
         self, session_id: int, *, start: float | None = None, end: float | None = None
     ) -> Iterator[str]:
         """CSV text in pieces: the header row with units (``t [s],q [rad],…``), then the
-        samples, one piece per stored chunk."""
+        samples, one piece per stored chunk. A bad window is refused now, not mid-stream."""
+        _window(start, end)
         chunks = self.iter_chunks(session_id, start=start, end=end)
 
         def pieces() -> Iterator[str]:

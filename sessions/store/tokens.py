@@ -67,6 +67,21 @@ class TokenRepository:
             )
             return None if row is None else AccountRecord.model_validate(row)
 
+    def live(self, *, now: datetime | None = None) -> list[tuple[str, AccountRecord, datetime]]:
+        """Every live login: its digest, its (enabled) account and its expiry. (A copy kept
+        elsewhere, as the e-stop gate keeps one, is refreshed whenever logins change.)"""
+        with self._db.session(write=False) as s:
+            rows = s.execute(
+                select(AuthToken.digest, AuthToken.expires_at, Account)
+                .join(Account, AuthToken.account_id == Account.id)
+                .where(
+                    AuthToken.revoked.is_(False),
+                    AuthToken.expires_at > (now or utcnow()),
+                    Account.disabled.is_(False),
+                )
+            ).all()
+            return [(d, AccountRecord.model_validate(a), e) for d, e, a in rows]
+
     def revoke(self, token: str) -> bool:
         """End one login; True if it existed."""
         with self._db.session(write=True) as s:

@@ -16,6 +16,12 @@ the ring's header, written every cycle and every idle poll) is younger than
 (on an ODrive, the device watchdog then zeroes the torque by itself). Call :meth:`poll` at a
 steady pace (10-50 Hz is plenty) while a session runs.
 
+A worker is lost however it goes: killed, crashed (the process gone without a word), exited
+when nobody asked it to (an unhandled bug, SIGTERM from elsewhere: its ``exited`` event names
+why), hung, or found gone when a command cannot be sent (a broken pipe). Only
+:meth:`shutdown` ends a worker without losing it. A lost handle refuses every command with
+a :class:`WorkerError` that says so; the owner replaces it with a new :class:`Worker`.
+
 Usage::
 
     with Worker(MachineSpec(kind="sim")) as worker:
@@ -48,7 +54,6 @@ from sessions.summary import SessionSummary
 from sessions.worker.channel import EventReceiver
 from sessions.worker.messages import (
     CandidateMeasured,
-    EStop,
     EStopped,
     Event,
     Faulted,
@@ -78,7 +83,10 @@ from sessions.worker.ring import (
     RingInfo,
     RingReader,
     TelemetryRing,
+    stamp_estop,
 )
+
+EXIT_GRACE = 2.0  # s a worker that announced its exit may take to be gone before it is killed
 
 
 class WorkerError(RuntimeError):
@@ -186,6 +194,9 @@ class Worker:
         self._last_end: SessionEnded | None = None
         self._backlog: list[Event] = []
         self._closed = False
+        self._stopping = False  # shutdown() asked the worker to exit
+        self._exited: str | None = None  # the reason of a WorkerExited nobody asked for
+        self._exit_seen: float | None = None  # when that exit was first noticed
 
     # -- life --------------------------------------------------------------------------------
     def start(self, timeout: float | None = None, *, wait: bool = True) -> WorkerReady | None:
@@ -228,6 +239,7 @@ class Worker:
         if self._closed:
             return []
         out, self._backlog = self._backlog, []
+        self._stopping = True
         proc = self._proc
         if proc is not None and proc.is_alive():
             with contextlib.suppress(OSError, ValueError):
@@ -285,28 +297,45 @@ class Worker:
         self._starting = (session_id, cfg)
         self._send(StartSession(cfg, session_id))
 
-    def stop(self, immediate: bool = False) -> None:
-        """End the running session: torque ramped out (or zero at once with ``immediate``)."""
-        self._send(Stop(immediate))
+    def stop(self, immediate: bool = False, reason: str | None = None) -> None:
+        """End the running session: torque ramped out (or zero at once with ``immediate``);
+        ``reason`` is the session's (default: the operator's stop)."""
+        self._send(Stop(immediate, reason))
 
     def estop(self) -> float:
         """Emergency stop: the worker writes zero torque on its next cycle and latches until
-        :meth:`reset`. Returns the monotonic time the request was sent."""
+        :meth:`reset`. Through the e-stop line of the ring's header (the worker looks at it
+        every period, before its command pipe), so nothing queued can delay it. Returns the
+        monotonic time it was asked."""
+        if self._ring is None or self._closed:
+            raise WorkerError("the worker is not running")
         t = time.monotonic()
-        self._send(EStop())
+        stamp_estop(self._ring.view.hdr)
         return t
 
     def reset(self) -> None:
         """Clear a latched e-stop or fault (never restarts motion)."""
-        self._send(Reset())
+        self._send(Reset(time.monotonic_ns()))
 
     def _send(self, cmd: object) -> None:
         if self._cmd is None or self._closed:
             raise WorkerError("the worker is not running")
+        if self._state in ("lost", "closed") and not self._stopping:
+            self._backlog.extend(self._drain())
+            self._backlog.extend(self._check_alive())
+            if self._state == "lost":
+                raise WorkerError(f"the worker is lost ({self._fault}): reset it")
+            raise WorkerError(f"the worker has exited ({self._exited}): reset it")
         try:
             self._cmd.send(cmd)
         except (OSError, ValueError) as exc:
-            raise WorkerError(f"the worker is not running ({exc})") from None
+            # the worker's end of the pipe is gone: so is the worker (or it is broken)
+            self._backlog.extend(self._drain())
+            self._backlog.extend(self._check_alive())
+            if self._state != "lost":
+                self._kill()
+                self._backlog.extend(self._lost(f"worker unreachable ({exc})", None))
+            raise WorkerError(f"the worker is lost ({self._fault}): reset it") from None
 
     # -- observation (non-blocking) -----------------------------------------------------------
     def poll(self) -> list[Event]:
@@ -429,13 +458,21 @@ class Worker:
             self._state = "faulted" if ev.fault else "idle"
         elif isinstance(ev, WorkerExited):
             self._state = "closed"
+            if not self._stopping:
+                self._exited = ev.reason
 
     def _check_alive(self) -> list[Event]:
         proc = self._proc
-        if proc is None or self._state in ("closed", "lost"):
+        if proc is None or self._state == "lost" or self._closed:
+            return []
+        if self._exited is not None:  # it said goodbye, but nobody had asked it to go
+            return self._exiting(proc)
+        if self._state == "closed":
             return []
         if not proc.is_alive():
             late = self._drain()  # what it managed to send before it died
+            if self._exited is not None:
+                return late + self._exiting(proc)
             if self._state == "closed":
                 return late
             return late + self._lost(f"worker died (exit code {proc.exitcode})", proc.exitcode)
@@ -447,6 +484,18 @@ class Worker:
             self._kill()
             return self._lost(f"worker unresponsive: no heartbeat for {age * 1e3:.0f} ms", None)
         return []
+
+    def _exiting(self, proc: Any) -> list[Event]:
+        """A worker that announced its exit unasked: lost once the process is gone (killed if
+        it lingers past :data:`EXIT_GRACE`)."""
+        if proc.is_alive():
+            now = time.monotonic()
+            if self._exit_seen is None:
+                self._exit_seen = now
+            if now - self._exit_seen < EXIT_GRACE:
+                return []
+            self._kill()
+        return self._lost(f"worker exited: {self._exited}", proc.exitcode)
 
     def _lost(self, reason: str, exitcode: int | None) -> list[Event]:
         out: list[Event] = []

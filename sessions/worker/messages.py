@@ -31,9 +31,11 @@ class StartSession:
 
 @dataclass(frozen=True)
 class Stop:
-    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``."""
+    """End the session: a controlled stop (torque ramped out), or at once with ``immediate``;
+    ``reason`` says who asked (default: the operator)."""
 
     immediate: bool = False
+    reason: str | None = None
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,11 @@ class EStop:
 
 @dataclass(frozen=True)
 class Reset:
-    """Clear a latched e-stop or fault. Never starts anything."""
+    """Clear a latched e-stop or fault. Never starts anything. ``sent_ns``: when it was asked
+    (CLOCK_MONOTONIC): a reset asked before the e-stop it would clear is refused (the e-stop
+    line overtakes the command pipe, a reset queued there must not undo it)."""
+
+    sent_ns: int = 0
 
 
 @dataclass(frozen=True)

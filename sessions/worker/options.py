@@ -23,6 +23,13 @@ class WorkerOptions(BaseModel):
         1000, ge=1, description="prctl(PR_SET_TIMERSLACK): sharper sleeps, ns"
     )
     stop_ramp: float = Field(0.5, gt=0, le=10.0, description="torque ramp of a controlled stop, s")
+    catch_up_max: float = Field(
+        0.1,
+        gt=0,
+        le=1.0,
+        description="s of missed periods the loop steps late on a free-running machine (a real "
+        "drive); a longer stall ends the session, zero torque",
+    )
     heartbeat_timeout: float = Field(
         0.1, gt=0, le=10.0, description="no heartbeat this long: the parent declares it lost, s"
     )

@@ -59,7 +59,7 @@ from sessions.worker.messages import (
 )
 from sessions.worker.options import WorkerOptions
 from sessions.worker.pacer import setup_realtime
-from sessions.worker.ring import H_PID, H_SESSION, H_STATE, RingWriter
+from sessions.worker.ring import H_ESTOP, H_PID, H_SESSION, H_STATE, RingWriter
 from sessions.worker.supervisor import End
 
 
@@ -98,6 +98,7 @@ class WorkerProcess:
         self.fault: str | None = None
         self.terminated = False
         self.shutdown = False
+        self.estop_seen = int(self.ring.hdr[H_ESTOP])  # the e-stop line's last stamp acted on
         self.exit_reason = ""
         self.machine: Machine = make_machine(spec)
         self.machine.keepalive = self.beat
@@ -105,6 +106,14 @@ class WorkerProcess:
     # -- plumbing ------------------------------------------------------------------------
     def beat(self) -> None:
         self.ring.beat(self.state)
+
+    def estop_requested(self) -> bool:
+        """A new stamp on the e-stop line (:class:`sessions.worker.ring.EStopLine`)."""
+        stamp = int(self.ring.hdr[H_ESTOP])
+        if stamp == self.estop_seen:
+            return False
+        self.estop_seen = stamp
+        return True
 
     def emit(self, ev: object) -> None:
         self.events.send(ev)
@@ -158,6 +167,8 @@ class WorkerProcess:
             if not self.parent_alive():
                 self.exit_reason = "parent died"
                 return
+            if self.estop_requested():  # before any command: a reset sent after it follows it
+                self.idle_command(EStop())
             try:
                 if not self.cmd_poll.poll(self.opt.idle_poll * 1e3):
                     continue
@@ -192,6 +203,9 @@ class WorkerProcess:
             self.beat()
             self.emit(EStopped(zero_at, None, zero_at))
         elif isinstance(cmd, Reset):
+            if self.state == STATE_ESTOPPED and cmd.sent_ns < self.estop_seen:
+                self.emit(Rejected(now, "reset", "asked before the e-stop it would clear"))
+                return
             self.reset()
         else:
             self.emit(Rejected(now, type(cmd).__name__, "unknown command"))

@@ -20,6 +20,9 @@ against a torn record elsewhere.)
 
 The header also carries the worker's heartbeat (monotonic ns, written every cycle and every
 idle poll), its state code and session number: the parent's liveness check reads them here.
+And one word goes the other way: ``H_ESTOP``, an e-stop request any process holding the ring's
+name may stamp (:class:`EStopLine`); the worker looks at it every period and latches on a new
+stamp, whatever its command pipe holds.
 
 The parent creates the block (:meth:`TelemetryRing.create`, registered with multiprocessing's
 resource tracker so it is removed even if the parent is killed) and unlinks it; the worker and
@@ -45,6 +48,7 @@ VERSION = 1
 HEADER_WORDS = 16
 H_MAGIC, H_VERSION, H_CAPACITY, H_WIDTH, H_HEAD, H_HEARTBEAT = 0, 1, 2, 3, 4, 5
 H_STATE, H_SESSION, H_PID, H_CYCLES = 6, 7, 8, 9
+H_ESTOP = 10  # the newest e-stop request: a monotonic-ns stamp any process may write
 
 # A record's columns are the telemetry's (sessions.telemetry); the worker state codes in the
 # header and the bits of the flags column are sessions.codes'.
@@ -148,6 +152,30 @@ class TelemetryRing:
         finally:
             with contextlib.suppress(FileNotFoundError):
                 self.shm.unlink()
+
+
+def stamp_estop(hdr: np.ndarray) -> None:
+    """Ask for an e-stop through a writable header (one aligned 8-byte store: atomic)."""
+    hdr[H_ESTOP] = time.monotonic_ns()
+
+
+class EStopLine:
+    """Another process's line to the worker's e-stop: the ring's header, mapped writable,
+    used for nothing but :meth:`trigger`."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.mm = _attach(name, writable=True)
+        self.hdr = np.ndarray((HEADER_WORDS,), dtype=np.int64, buffer=self.mm)
+        if int(self.hdr[H_MAGIC]) != MAGIC:
+            raise ValueError("not an ergoseek telemetry ring")
+
+    def trigger(self) -> None:
+        stamp_estop(self.hdr)
+
+    def close(self) -> None:
+        del self.hdr
+        self.mm.close()
 
 
 class RingWriter:

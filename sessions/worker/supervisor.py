@@ -5,8 +5,12 @@ What ends a session, and how (:class:`End`):
 - **e-stop** (command): zero torque written the same cycle the command is seen, drive
   disarmed, latched (state ``estopped``) until a reset; the session ends ``stopped`` (reason
   ``e-stop``): an operator's decision, like a stop.
-- **machine fault** (timeout, garbage, drive error): the backend has already written zero
-  torque; the session ends ``faulted``; latched until a reset.
+- **machine fault** (timeout, garbage, drive error, a non-finite measurement): the backend
+  has already written zero torque; the session ends ``faulted``; latched until a reset.
+- **a non-finite value in the loop** (reference, estimate, command, power, work, target) or
+  **a stall** longer than the catch-up bound (a free-running machine): zero torque at once,
+  the session ends ``aborted`` naming the value or the stall; nothing is latched (the machine
+  is sound), and the summary keeps only what is finite.
 - **parent gone** (the command pipe closes or the parent pid changes), **SIGTERM**, **shutdown**:
   zero torque at once, the session ends ``aborted`` (``stopped`` for a shutdown).
 - **velocity over the limit** and **passivity breach** (W < −c²): a controlled stop, the
@@ -40,6 +44,7 @@ the engine's (:mod:`sessions.limits`) and the machine's own.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Protocol
@@ -147,9 +152,14 @@ class Supervisor:
         self.ending: End | None = None  # winding down to rest, then this end
 
     def freeze(self, status: EndStatus, reason: str) -> SessionSummary:
-        """The session's summary, computed the first time only."""
+        """The session's summary, computed the first time only. If the loop's figures are
+        not finite (the loop met a non-finite value), what is finite is kept."""
         if self.summary is None:
-            self.summary = summarize(self.loop, None if status == "completed" else reason)
+            why = None if status == "completed" else reason
+            try:
+                self.summary = summarize(self.loop, why)
+            except ValueError:  # a non-finite figure: SessionSummary refuses it
+                self.summary = partial_summary(self.loop, why)
         return self.summary
 
     # -- between cycles: what the operator and the process ask ------------------------------
@@ -164,8 +174,8 @@ class Supervisor:
         if isinstance(cmd, Stop):
             if cmd.immediate or self.ramp is not None or self.ending is not None:
                 host.machine.zero()
-                return End("stopped", "stopped at once by the operator"), 0
-            self.wind_down("stopped", "stopped by the operator")
+                return End("stopped", cmd.reason or "stopped at once by the operator"), 0
+            self.wind_down("stopped", cmd.reason or "stopped by the operator")
         elif isinstance(cmd, Shutdown):
             host.machine.zero()
             host.shutdown = True
@@ -191,6 +201,15 @@ class Supervisor:
         self.host.emit(Faulted(now, self.sid, reason))
         self.freeze("faulted", reason)
         return End("faulted", reason, STATE_FAULTED)
+
+    def loop_error(self, reason: str, measured: bool, now: float) -> End:
+        """This period cannot go on (the cycle has zeroed the torque): a non-finite
+        measurement is the machine's fault (latched); a non-finite value of the loop's own, or
+        a stall beyond the catch-up bound, ends the session aborted."""
+        if measured:
+            return self.fault(reason, now)
+        self.freeze("aborted", reason)
+        return End("aborted", reason)
 
     # -- after each step: what the physics says -------------------------------------------
     def check(self, u: float, w: float, now: float) -> int:
@@ -246,3 +265,21 @@ class Supervisor:
         u = host.machine.last_command if u0 is None else u0
         loop = self.loop
         self.ramp = StopRamp(u, self.ramp_s, loop.dt, loop.limits)
+
+
+def partial_summary(loop: Loop, reason: str | None) -> SessionSummary:
+    """A summary of what is finite when the loop's own figures are not."""
+    seeker = loop.seeker
+    finite = [v if math.isfinite(v) else 0.0 for v in (loop.mean_power, loop.peak_power)]
+    work, w_min = loop.passivity.work, loop.passivity.minimum
+    return SessionSummary(
+        converged=False,
+        seeker=seeker.kind,
+        mean_power=finite[0],
+        peak_power=finite[1],
+        work=work if math.isfinite(work) else 0.0,
+        duration=loop.elapsed,
+        passivity_min=min(0.0, w_min) if math.isfinite(w_min) else 0.0,
+        evaluations=len(seeker.evaluations),
+        abort_reason=reason,
+    )

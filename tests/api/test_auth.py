@@ -25,7 +25,7 @@ ROUTES: list[tuple[str, str, dict | None, str]] = [
     ("POST", "/api/v1/machine/reset", None, "trainer"),
     ("GET", "/api/v1/accounts", None, "admin"),
     ("GET", "/api/v1/accounts/{acc}", None, "admin"),
-    ("POST", "/api/v1/accounts", {"login": "newbie", "password": "newbie-pass"}, "admin"),
+    ("POST", "/api/v1/accounts", {"login": "newbie", "password": "newbie pass phrase"}, "admin"),
     ("PATCH", "/api/v1/accounts/{acc}", {"role": "viewer"}, "admin"),
 ]
 RANK = {"viewer": 0, "trainer": 1, "admin": 2}
@@ -42,7 +42,8 @@ def ids(server: ServerProcess) -> dict[str, int]:
     with server.client("admin") as c:
         user = c.post("/api/v1/users", json={"name": "Matrix"}).json()["id"]
         acc = c.post(
-            "/api/v1/accounts", json={"login": "spare", "password": "spare-pass", "role": "viewer"}
+            "/api/v1/accounts",
+            json={"login": "spare", "password": "spare tyre in the boot", "role": "viewer"},
         ).json()["id"]
     return {"user": user, "acc": acc}
 
@@ -94,7 +95,11 @@ def test_cookie_login_logout_and_cross_site_changes(server: ServerProcess) -> No
         assert evil.status_code == 403
         own = c.post("/api/v1/users", json={"name": "Y"}, headers={"Origin": server.url})
         assert own.status_code == 201
-        assert c.post("/api/v1/auth/logout").status_code == 204
+        assert c.post("/api/v1/auth/logout").status_code == 403  # no Origin: not our page
+        out = c.post("/api/v1/auth/logout", headers={"Origin": server.url})
+        assert out.status_code == 204
+        gone = out.headers["set-cookie"].lower()  # deleted with the attributes it was set with
+        assert "max-age=0" in gone and "httponly" in gone and "samesite=strict" in gone
         assert c.get("/api/v1/auth/me").status_code == 401
 
 
@@ -108,7 +113,8 @@ def test_failed_logins_are_rate_limited(server: ServerProcess) -> None:
 
 def test_revoked_token_and_disabled_account(server: ServerProcess, ids: dict[str, int]) -> None:
     token = httpx.post(
-        server.url + "/api/v1/auth/token", json={"login": "spare", "password": "spare-pass"}
+        server.url + "/api/v1/auth/token",
+        json={"login": "spare", "password": "spare tyre in the boot"},
     ).json()["access_token"]
     h = {"Authorization": f"Bearer {token}"}
     assert httpx.get(server.url + "/api/v1/users", headers=h).status_code == 200

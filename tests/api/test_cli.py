@@ -26,12 +26,12 @@ def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:
         "trainer",
         "--database-url",
         url,
-        stdin="s3cret-pass\n",
+        stdin="s3cret pass for the coach\n",
     )
     assert ok.returncode == 0, ok.stderr
     assert "created trainer account 'coach'" in ok.stdout
     with open_store(url) as store:
-        assert store.accounts.authenticate("coach", "s3cret-pass").role == "trainer"
+        assert store.accounts.authenticate("coach", "s3cret pass for the coach").role == "trainer"
     again = ergoseek(
         "account",
         "create",
@@ -40,7 +40,7 @@ def test_account_create_reads_the_password_from_stdin(tmp_path: Path) -> None:
         "viewer",
         "--database-url",
         url,
-        stdin="other-pass\n",
+        stdin="another pass for the coach\n",
     )
     assert again.returncode == 2 and "taken" in again.stderr and "Traceback" not in again.stderr
     short = ergoseek(

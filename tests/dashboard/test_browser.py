@@ -18,6 +18,8 @@ The screenshot taken mid-session is kept in the test's tmp_path; with
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
 import re
@@ -30,6 +32,7 @@ from typing import Any
 
 import httpx
 import pytest
+import viser
 
 from testing.browser import (
     TRAINER,
@@ -46,8 +49,15 @@ from testing.browser import (
     ws_status,
 )
 from testing.screenshot import DEFAULT_OUT as SCREENSHOT
-from tests.dashboard.conftest import VIEWER, VIEWER_PASSWORD
-from webui.dashboard import viser_server
+from tests.dashboard.conftest import (
+    CHIEF,
+    CHIEF_PASSWORD,
+    COACH,
+    COACH_PASSWORD,
+    VIEWER,
+    VIEWER2,
+    VIEWER_PASSWORD,
+)
 
 # The simulated person of this test and the optimum of their power τ(w)·w.
 TAU0, WMAX, A = 3.0, 10.0, 0.25
@@ -215,7 +225,8 @@ def test_the_socket_needs_the_login_and_our_origin(server: DemoServer, trainer: 
 
 def test_the_page_talks_to_this_server_only(server: DemoServer, trainer: Afternoon) -> None:
     # viser's ?websocket= override is blocked (CSP)
-    foreign = viser_server()
+    with contextlib.redirect_stdout(io.StringIO()):
+        foreign = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         foreign.gui.add_markdown("A FOREIGN DASHBOARD")
         lure = trainer.context.new_page()
@@ -238,6 +249,63 @@ def test_a_viewer_gets_the_dashboard_without_controls(server: DemoServer, browse
         assert viewer.get_by_role("button", name=name, exact=True).count() == 0
     assert viewer.get_by_role("tab", name="Users", exact=True).count() == 0
     viewer_ctx.close()
+
+
+def test_each_trainer_has_their_own_session_setup(
+    server: DemoServer, browser: Any, trainer: Afternoon
+) -> None:
+    page = trainer.page
+    page.get_by_role("tab", name="Live", exact=True).click()
+    mine = page.get_by_label("Duration (s)", exact=True)
+    before = mine.input_value()
+    other_ctx = browser.new_context(viewport=VIEWPORT)
+    other = other_ctx.new_page()
+    login(other, server.url, COACH, COACH_PASSWORD)
+    set_number(other, "Duration (s)", 999)
+    pick(other, "Preset", "Paper Exp. 1")
+    pick(other, "User", "Ada (#1)")
+    wait_text(other, r"Stored optimum for Ada")
+    assert other.get_by_label("Duration (s)", exact=True).input_value() == "999"
+    time.sleep(1.0)  # (what a shared GUI would have sent on by now)
+    assert mine.input_value() == before
+    assert page.get_by_role("combobox", name="Preset", exact=True).input_value() == (
+        "ergoseek defaults"
+    )
+    assert page.get_by_role("combobox", name="User", exact=True).input_value() == trainer.label
+    other_ctx.close()
+
+
+def test_each_viewer_has_their_own_history_pick(server: DemoServer, browser: Any) -> None:
+    pages = []
+    for login_name in (VIEWER, VIEWER2):
+        ctx = browser.new_context(viewport=VIEWPORT)
+        page = ctx.new_page()
+        login(page, server.url, login_name, VIEWER_PASSWORD)
+        page.get_by_role("tab", name="History", exact=True).click()
+        pages.append((ctx, page))
+    (_, a), (_, b) = pages
+    picked_b = b.get_by_role("combobox", name="History of", exact=True).input_value()
+    pick(a, "History of", "Ben (#2)")
+    wait_text(a, r"Ben · \d+ session")
+    time.sleep(1.0)
+    assert b.get_by_role("combobox", name="History of", exact=True).input_value() == picked_b
+    for ctx, _ in pages:
+        ctx.close()
+
+
+def test_a_demoted_trainer_is_moved_off_the_controls(server: DemoServer, browser: Any) -> None:
+    ctx = browser.new_context(viewport=VIEWPORT)
+    page = ctx.new_page()
+    login(page, server.url, COACH, COACH_PASSWORD)
+    estop = page.get_by_role("button", name="E-STOP", exact=True)
+    estop.wait_for()
+    with server.client(CHIEF, CHIEF_PASSWORD) as admin:
+        coach = next(a for a in admin.get("/api/v1/accounts").json() if a["login"] == COACH)
+        admin.patch(f"/api/v1/accounts/{coach['id']}", json={"role": "viewer"}).raise_for_status()
+    estop.wait_for(state="detached", timeout=UI_TIMEOUT)  # the page reconnects as a viewer
+    wait_text(page, r"view only|Viewer: the dashboard without controls")
+    assert page.get_by_role("button", name="Start", exact=True).count() == 0
+    ctx.close()
 
 
 def test_logging_out_closes_the_page_and_its_socket(server: DemoServer, trainer: Afternoon) -> None:

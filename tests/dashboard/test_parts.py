@@ -3,6 +3,7 @@ viser's uPlot, the seeker's progress from event frames, the event log lines."""
 
 from __future__ import annotations
 
+import html
 import math
 
 import numpy as np
@@ -10,7 +11,16 @@ import numpy as np
 from sessions.config import parse_session_config
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
-from webui.charts import LIVE, LiveWindow, lead_finite, plottable, seeker_data, seeker_range
+from webui.charts import (
+    LIVE,
+    LiveWindow,
+    lead_finite,
+    plottable,
+    seeker_data,
+    seeker_range,
+    seeker_x_range,
+)
+from webui.escape import WORD_JOINER
 from webui.feed import describe_event
 from webui.progress import SeekerProgressView
 
@@ -96,11 +106,28 @@ def test_seeker_progress_from_event_frames() -> None:
     view.add({**frame, "session_t": 14.2, "candidate": 3.11, "power": 2.8648, "target": 3.101,
               "done": True})  # fmt: skip
     assert view.fraction == 1.0
-    assert "Optimum: 3.101 rad/s** (converged)" in view.describe()
+    assert "Optimum: 3.101 rad/s** (converged)" in text_of(view.describe())
+
+
+def text_of(markdown: str | None) -> str:
+    """What a reader sees of escaped inline markdown (its character references decoded)."""
+    assert markdown is not None
+    return html.unescape(markdown).replace(WORD_JOINER, "")
 
 
 def test_event_log_lines() -> None:
-    assert describe_event({"type": "event", "kind": "estop"}).startswith("E-STOP")
+    assert text_of(describe_event({"type": "event", "kind": "estop"})).startswith("E-STOP")
     line = describe_event({"type": "session_finished", "session_id": 4, "status": "completed"})
-    assert line == "session #4 ended: completed"
+    assert text_of(line) == "session #4 ended: completed"
     assert describe_event({"type": "event", "kind": "timing"}) is None
+    # A device's fault text is escaped like any stored string.
+    fault = describe_event({"type": "event", "kind": "fault", "reason": "<img src=x onerror=1>"})
+    assert "<" not in str(fault) and text_of(fault) == "fault: <img src=x onerror=1>"
+
+
+def test_the_seeker_chart_shows_every_candidate_and_the_bracket() -> None:
+    evs = [(3.47, 2.847), (3.28, 2.860), (2.85, 2.856)]
+    lo, hi = seeker_x_range(evs, (3.03, 3.10))
+    assert lo < 2.85 and hi > 3.47
+    lo, hi = seeker_x_range([], (1.0, 6.0))
+    assert lo < 1.0 and hi > 6.0

@@ -1,29 +1,53 @@
 """The dashboard's server side without a browser: the real app (simulated machine, a
-temporary SQLite store, both viser servers) in Starlette's TestClient.
+temporary SQLite store, the viser server) in Starlette's TestClient.
 
-The login page; ``/dashboard/`` only for a logged-in account, gzipped; the WebSocket proxy
-refuses before accept without a login, without or with a foreign Origin, without viser's
-subprotocol, and relays viser's frames to trainers and viewers, each to their own server;
-GUI actions need a connection that came through the proxy; ``stop()`` is idempotent.
+The login page and ``/dashboard/`` (logged-in accounts only, gzipped) under strict
+Content-Security-Policies; the WebSocket proxy refuses before accept without a login,
+without or with a foreign Origin, without viser's subprotocol, and relays viser's frames;
+each browser gets a dashboard of its own (a viewer's without controls) and the shared GUI
+holds nothing a browser could change; the viser server is on a private Unix socket and
+refuses, at the handshake, anything but the proxy, listening on no TCP port; viser's own
+update handler keeps an element's callbacks even for a connection with the secret;
+``stop()`` is idempotent and removes the socket; a socket closes when its login ends.
 """
 
 from __future__ import annotations
 
+import base64
+import contextlib
+import hashlib
+import os
+import re
+import stat
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
-import viser
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
+from websockets.exceptions import InvalidStatus
 
 from server.app import create_app
 from server.settings import Settings
 from sessions.store import open_store
+from testing.viser_wire import (
+    CAMERA,
+    SUBPROTOCOL,
+    decode,
+    encode,
+    gui_update,
+    open_unix,
+    tcp_listeners,
+)
+from webui.upstream import PROXY_HEADER
 
-SUBPROTOCOL = f"viser-v{viser.__version__}"
 ORIGIN = "http://testserver"
-ACCOUNTS = {"coach": ("trainer", "coach-password"), "guest": ("viewer", "guest-password")}
+ACCOUNTS = {
+    "coach": ("trainer", "coach-Pw-7731-kqZ"),
+    "guest": ("viewer", "guest-Pw-5512-mvT"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +56,7 @@ def app_client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]
     with open_store(url) as store:
         for login, (role, password) in ACCOUNTS.items():
             store.accounts.create(login, password, role)
-    app = create_app(Settings(database_url=url, machine="sim"))
+    app = create_app(Settings(database_url=url, machine="sim", allowed_hosts=["testserver"]))
     with TestClient(app) as client:
         yield client
 
@@ -62,10 +86,26 @@ def refused(client: TestClient, headers: dict[str, str], subprotocols: list[str]
     return False
 
 
+def policy(header: str) -> dict[str, list[str]]:
+    """A Content-Security-Policy header as directive → sources."""
+    out = {}
+    for part in header.split(";"):
+        name, *sources = part.split()
+        out[name] = sources
+    return out
+
+
+def sha256(text: str) -> str:
+    return "'sha256-" + base64.b64encode(hashlib.sha256(text.encode()).digest()).decode() + "'"
+
+
 def test_login_page_and_dashboard_page(app_client: TestClient) -> None:
     r = app_client.get("/")
     assert r.status_code == 200 and 'id="login"' in r.text
-    assert "frame-ancestors 'none'" in r.headers["content-security-policy"]
+    login_csp = policy(r.headers["content-security-policy"])
+    (script,) = re.findall(r"<script>(.*?)</script>", r.text, re.S)
+    assert login_csp["script-src"] == [sha256(script)]  # its own script, nothing else
+    assert login_csp["frame-ancestors"] == ["'none'"] and login_csp["default-src"] == ["'none'"]
     r = app_client.get("/dashboard/", follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/"
     cookie = logged_in(app_client, "coach")
@@ -74,7 +114,17 @@ def test_login_page_and_dashboard_page(app_client: TestClient) -> None:
     r = app_client.get("/dashboard/", headers={**cookie, "Accept-Encoding": "gzip"})
     assert r.status_code == 200 and r.headers["content-encoding"] == "gzip"
     assert "<title>Viser</title>" in r.text  # (decoded by the client)
-    assert "connect-src 'self'" in r.headers["content-security-policy"]
+    csp = policy(r.headers["content-security-policy"])
+    # viser's loader (its one inline script) and the app module it inserts; no inline
+    # script, handler or eval of anything else.
+    (loader,) = re.findall(r"<script [^>]*>(.*?)</script>", r.text, re.S)
+    hashes = [s for s in csp["script-src"] if s.startswith("'sha256-")]
+    assert sha256(loader) in hashes and len(hashes) == 2
+    assert set(csp["script-src"]) == {*hashes, "'wasm-unsafe-eval'"}
+    assert csp["default-src"] == ["'none'"] and csp["object-src"] == ["'none'"]
+    assert csp["connect-src"] == ["'self'", "data:"]  # (no ?websocket= to another server)
+    assert csp["frame-ancestors"] == ["'none'"] and csp["frame-src"] == ["'none'"]
+    assert r.headers["x-frame-options"] == "DENY"
     raw = app_client.get("/dashboard/", headers={**cookie, "Accept-Encoding": "identity"}).content
     assert raw.startswith(b"<!doctype html>")  # identity: not compressed
     assert app_client.get("/dashboard/../../etc/passwd", headers=cookie).status_code == 404
@@ -94,56 +144,165 @@ def test_the_socket_refuses_before_accepting(app_client: TestClient) -> None:
     assert refused(app_client, own, [SUBPROTOCOL])  # logged out
 
 
-def test_trainers_and_viewers_reach_their_own_viser(app_client: TestClient) -> None:
+def proxied(client: TestClient, login: str) -> Any:
+    """A dashboard socket through the proxy, logged in as ``login``."""
+    headers = {**logged_in(client, login), "origin": ORIGIN}
+    return client.websocket_connect("/dashboard", headers=headers, subprotocols=[SUBPROTOCOL])
+
+
+def elements(ws: Any, timeout: float = 20.0) -> dict[str, dict[str, Any]]:
+    """label → creation message of the GUI elements of a browser's own dashboard, received
+    until its last-built part (the seeker's progress bar) has arrived (after the first
+    camera message, which the caller sent)."""
+    seen: dict[str, dict[str, Any]] = {}
+    deadline = time.monotonic() + timeout
+    while "(progress)" not in seen:
+        assert time.monotonic() < deadline, f"the dashboard never completed: {sorted(seen)}"
+        for m in decode(ws.receive_bytes()):
+            if m.get("type") == "GuiProgressBarMessage":
+                seen["(progress)"] = m
+            elif m.get("type", "").startswith("Gui") and isinstance(m.get("props"), dict):
+                seen.setdefault(str(m["props"].get("label")), m)
+    return seen
+
+
+def test_trainers_and_viewers_get_their_own_dashboards(app_client: TestClient) -> None:
     runtime = app_client.app.state.runtime  # type: ignore[attr-defined]
-    dashboard = runtime.dashboard
-    control, view = dashboard.servers["control"], dashboard.servers["view"]
-    assert dashboard.upstream("trainer").endswith(f":{control.get_port()}")
-    assert dashboard.upstream("admin").endswith(f":{control.get_port()}")
-    assert dashboard.upstream("viewer").endswith(f":{view.get_port()}")
-    for login, server in (("coach", control), ("guest", view)):
-        headers = {**logged_in(app_client, login), "origin": ORIGIN}
-        with app_client.websocket_connect(
-            "/dashboard", headers=headers, subprotocols=[SUBPROTOCOL]
-        ) as ws:
+    ctx = runtime.dashboard.ctx
+    for login, controls in (("coach", True), ("guest", False)):
+        with proxied(app_client, login) as ws:
             assert ws.accepted_subprotocol == SUBPROTOCOL
-            frame = ws.receive_bytes()  # viser's initial state, relayed untouched
-            assert len(frame) > 1000
-            client_id = max(server._websock_server._live_connections)  # the newest
-            account = dashboard.bridge.proxied_account_id(server, client_id)
-            assert account == runtime.store.accounts.by_login(login).id
-            if login == "coach":
-                assert dashboard.bridge.trainer(server, client_id) is not None
-            else:
-                assert dashboard.bridge.trainer(server, client_id) is None
+            assert len(ws.receive_bytes()) > 1000  # viser's shared state, relayed untouched
+            ws.send_bytes(encode(CAMERA))
+            got = elements(ws)
+            assert "History of" in got
+            assert ("E-STOP" in got) is controls and ("Start" in got) is controls
+            assert ("Profile" in got) is controls  # the Users tab
+            deadline = time.monotonic() + 5
+            views = []
+            while not views and time.monotonic() < deadline:  # (registered once built)
+                views = [v for v in ctx.views() if v.who.login == login]
+                time.sleep(0.05)
+            assert len(views) == 1
+            assert views[0].who.role == ACCOUNTS[login][0]
 
 
-def test_a_direct_connection_to_viser_cannot_act(app_client: TestClient) -> None:
-    from websockets.sync.client import connect
+def test_one_account_opens_a_bounded_number_of_dashboards(app_client: TestClient) -> None:
+    from webui.proxy import MAX_PER_ACCOUNT
 
+    with contextlib.ExitStack() as open_ones:
+        for _ in range(MAX_PER_ACCOUNT):
+            ws = open_ones.enter_context(proxied(app_client, "coach"))
+            ws.receive_bytes()
+        headers = {**logged_in(app_client, "coach"), "origin": ORIGIN}
+        assert refused(app_client, headers, [SUBPROTOCOL])
+        headers = {**logged_in(app_client, "guest"), "origin": ORIGIN}
+        assert not refused(app_client, headers, [SUBPROTOCOL])  # another account: fine
+
+
+def test_the_shared_gui_holds_nothing_a_browser_could_change(app_client: TestClient) -> None:
+    server = app_client.app.state.runtime.dashboard.server  # type: ignore[attr-defined]
+    assert server.gui._gui_input_handle_from_uuid == {}
+
+
+def raw_unix(path: str, headers: dict[str, str] | None) -> int | list[dict[str, Any]]:
+    """The HTTP status a handshake on the socket was refused with, or what it received."""
+    try:
+        with open_unix(path, headers) as raw:
+            raw.hello()
+            return raw.receive(1.5)
+    except InvalidStatus as exc:
+        return int(exc.response.status_code)
+
+
+def http_unix(path: str, headers: dict[str, str]) -> int:
+    """A plain HTTP GET / on the socket: its status."""
+    import http.client
+    import socket
+
+    class Conn(http.client.HTTPConnection):
+        def connect(self) -> None:
+            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            self.sock.connect(path)
+
+    conn = Conn("localhost", timeout=5)
+    conn.request("GET", "/", headers=headers)
+    status = conn.getresponse().status
+    conn.close()
+    return status
+
+
+def test_the_upstream_accepts_only_the_proxy(app_client: TestClient) -> None:
     dashboard = app_client.app.state.runtime.dashboard  # type: ignore[attr-defined]
-    control = dashboard.servers["control"]
-    with connect(
-        dashboard.upstream("trainer"),
-        subprotocols=[SUBPROTOCOL],
-        max_size=2**26,  # type: ignore[list-item]
-    ) as ws:
-        ws.recv(timeout=10)
-        client_id = max(control._websock_server._live_connections)
-        assert dashboard.bridge.proxied_account_id(control, client_id) is None
-        assert dashboard.bridge.trainer(control, client_id) is None
-    assert control.request_share_url() is None  # the share tunnel is disabled
+    path = dashboard.socket_path
+    assert stat.S_ISSOCK(os.stat(path).st_mode)
+    assert stat.S_IMODE(os.stat(Path(path).parent).st_mode) == 0o700  # this user only
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+    assert raw_unix(path, None) == 403  # refused at the handshake: no frame, no GUI state
+    assert raw_unix(path, {PROXY_HEADER: "guessed"}) == 403
+    assert http_unix(path, {}) == 403
+    assert http_unix(path, {PROXY_HEADER: dashboard.bridge.secret}) == 404  # no file server
+    # The secret without an account the proxy vouches for: closed, no dashboard of its own.
+    got = raw_unix(path, {PROXY_HEADER: dashboard.bridge.secret})
+    assert isinstance(got, list)
+    assert not [m for m in got if m.get("props", {}).get("label") == "E-STOP"]
+
+
+def test_the_dashboard_listens_on_no_tcp_port(tmp_path: Path) -> None:
+    before = tcp_listeners(os.getpid())
+    app = create_app(Settings(database_url=f"sqlite:///{tmp_path / 'db.sqlite3'}", machine="sim"))
+    with TestClient(app):  # (no uvicorn: whatever listens now is the dashboard's)
+        assert app.state.runtime.dashboard is not None
+        assert tcp_listeners(os.getpid()) - before == set()
+
+
+def test_viser_itself_refuses_to_rewire_an_element(app_client: TestClient) -> None:
+    """Behind the proxy's filter: viser's own handler, for a connection that has the secret
+    (as if the proxy let anything through)."""
+    runtime = app_client.app.state.runtime  # type: ignore[attr-defined]
+    dashboard, store = runtime.dashboard, runtime.store
+    coach = store.accounts.by_login("coach")
+    headers = dashboard.bridge.upstream_headers(coach)
+    sessions = store.sessions.list(limit=1).total
+    with open_unix(dashboard.socket_path, headers) as raw:
+        raw.hello()
+        estop, start = raw.wait_for("E-STOP"), raw.wait_for("Start")
+        for attack in ({"update_cb": []}, {"removed": True}, {"is_button": False}):
+            raw.send(gui_update(estop, **attack))
+        raw.send(gui_update(raw.wait_for("Duration (s)"), value=1e9))  # beyond its bounds
+        raw.send(gui_update(raw.wait_for("Controller"), value="not-a-controller"))
+        raw.receive(0.5)
+        view = next(v for v in dashboard.ctx.views() if v.who.login == "coach")
+        assert view.live.duration.value == 120.0
+        assert view.live.controller.value == "rise"
+        raw.send(gui_update(estop, value=True))  # still an E-STOP
+        deadline = time.monotonic() + 10
+        while runtime.machine.status().state != "estopped" and time.monotonic() < deadline:
+            raw.receive(0.1)
+        assert runtime.machine.status().state == "estopped"
+        while {"disabled": True} not in raw.updates_of(start) and time.monotonic() < deadline:
+            raw.receive(0.1)  # (latched: the feed disables Start)
+        raw.send(gui_update(start, value=True))  # a disabled button is not clicked
+        raw.receive(1.0)
+        assert store.sessions.list(limit=1).total == sessions
+    app_client.post(
+        "/api/v1/machine/reset", headers=logged_in(app_client, "coach") | {"origin": ORIGIN}
+    )
+    deadline = time.monotonic() + 10
+    while runtime.machine.status().state != "idle" and time.monotonic() < deadline:
+        time.sleep(0.1)
 
 
 def test_stop_is_idempotent(tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'db.sqlite3'}"
-    app = create_app(Settings(database_url=url, machine="sim"))
+    app = create_app(Settings(database_url=url, machine="sim", allowed_hosts=["testserver"]))
     with TestClient(app):
         dashboard = app.state.runtime.dashboard
         assert dashboard is not None
     dashboard.stop()  # the lifespan already stopped it
     dashboard.stop()
     assert dashboard.feed.task is not None and dashboard.feed.task.done()
+    assert not Path(dashboard.socket_path).parent.exists()  # the socket's directory is gone
 
 
 @pytest.mark.timeout(60)

@@ -15,18 +15,18 @@ import time
 import pytest
 
 from sessions.config import parse_session_config
-from sessions.machine import MachineError, MachineSpec, MachineState, make_machine
+from sessions.machine import MachineError, MachineState, make_machine
 from sessions.machine.odrive.emulator import AXIS_COUNT, EmulatorConfig, EmulatorProcess
 from sessions.machine.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 from sessions.worker import Worker, WorkerError, WorkerOptions
-from testing.live import follow, scenario, wait_for
+from testing.live import follow, odrive, scenario, wait_for
 
 CFG = parse_session_config({"duration": 30.0})
 TIMEOUT = 0.02
 
 
 def armed(emu, **spec):
-    m = make_machine(MachineSpec(kind="odrive", device=emu.path, reply_timeout=TIMEOUT, **spec))
+    m = make_machine(odrive(emu.path, reply_timeout=TIMEOUT, **spec))
     m.connect()
     m.arm(CFG)
     m.activate()
@@ -108,14 +108,14 @@ def test_a_vanished_device_is_a_fault_not_a_hang():
 
 
 def test_connect_refuses_a_wrong_device(tmp_path):
-    m = make_machine(MachineSpec(kind="odrive", device=str(tmp_path / "nothing")))
+    m = make_machine(odrive(str(tmp_path / "nothing")))
     with pytest.raises(MachineError, match="cannot open"):
         m.connect()
     assert m.state is MachineState.FAULT
 
 
 def test_worker_session_faults_on_garbage_and_stays_latched(emu):
-    spec = MachineSpec(kind="odrive", device=emu.path, reply_timeout=0.2, watchdog_timeout=0.5)
+    spec = odrive(emu.path, reply_timeout=0.2, watchdog_timeout=0.5)
     with Worker(spec, WorkerOptions()) as worker:
         worker.start()
         worker.start_session(scenario(duration=20.0), "garbled")

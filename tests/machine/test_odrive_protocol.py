@@ -16,7 +16,7 @@ import pytest
 import serial
 
 from sessions.config import parse_session_config
-from sessions.machine import MachineSpec, MachineState, make_machine
+from sessions.machine import MachineState, make_machine
 from sessions.machine.odrive.emulator import Device, EmulatorConfig, EmulatorProcess
 from sessions.machine.odrive.emulator.ascii import AsciiProtocol
 from sessions.machine.odrive.protocol import (
@@ -25,6 +25,7 @@ from sessions.machine.odrive.protocol import (
     checksum,
     describe_axis_error,
 )
+from testing.live import odrive
 
 GEAR, DIRECTION = 4.0, -1
 
@@ -90,7 +91,7 @@ def test_raw_conversation_follows_the_firmware(port):
 
 def test_backend_arms_the_device_and_converts_units(emu):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    spec = MachineSpec(kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION)
+    spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION)
     m = make_machine(spec)
     m.connect()
     assert m.firmware == (0, 5, 6)
@@ -120,9 +121,7 @@ def test_backend_arms_the_device_and_converts_units(emu):
 
 def test_backend_writes_the_device_limits(emu, port):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    m = make_machine(
-        MachineSpec(kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION)
-    )
+    m = make_machine(odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION))
     m.connect()
     m.arm(cfg)
     m.close()  # close idles the axis but leaves the limits on the device

@@ -24,13 +24,12 @@ import time
 import numpy as np
 import pytest
 
-from sessions.machine import MachineSpec
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.machine.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 from sessions.people import SimulatedUser
 from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerOptions
-from testing.live import follow, scenario, wait_for
+from testing.live import follow, odrive, scenario, wait_for
 
 GEAR, DIRECTION = 4.0, -1
 
@@ -48,9 +47,7 @@ def spec(emu, **kw):
     # generous I/O limits: host and device share a loaded VM, where a pty's kernel worker can
     # stall for tens of ms; the defaults (20 ms reply, 50 ms watchdog) are for hardware
     base = {"reply_timeout": 0.2, "watchdog_timeout": 0.5}
-    return MachineSpec(
-        kind="odrive", device=emu.path, gear_ratio=GEAR, direction=DIRECTION, **{**base, **kw}
-    )
+    return odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION, **{**base, **kw})
 
 
 def test_seeking_through_the_odrive_reaches_the_simulated_optimum(rig):

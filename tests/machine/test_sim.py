@@ -106,7 +106,7 @@ def test_non_finite_command_is_a_latched_fault(bad):
 def test_measured_controller_needs_a_torque_sensor():
     cfg = cfg_(controller={"kind": "measured"})
     assert MachineSpec(kind="sim").has_torque_sensor
-    spec = MachineSpec(kind="odrive", device="/dev/null")
+    spec = MachineSpec(kind="odrive", device="/dev/null", torque_constant=0.1)
     assert not spec.has_torque_sensor
     m = make_machine(spec)
     m.state = MachineState.CONNECTED  # arming is refused before any I/O
@@ -118,6 +118,12 @@ def test_machine_spec_validation():
     with pytest.raises(ValueError, match="device"):
         MachineSpec(kind="odrive")
     with pytest.raises(ValueError, match="watchdog_timeout must exceed"):
-        MachineSpec(kind="odrive", device="/dev/x", watchdog_timeout=0.01, reply_timeout=0.02)
+        MachineSpec(
+            kind="odrive",
+            device="/dev/x",
+            torque_constant=0.1,
+            watchdog_timeout=0.01,
+            reply_timeout=0.02,
+        )
     with pytest.raises(ValueError):
-        MachineSpec(kind="odrive", device="/dev/x", direction=2)
+        MachineSpec(kind="odrive", device="/dev/x", torque_constant=0.1, direction=2)

@@ -307,14 +307,14 @@ def _refused(field: str, call: object, *args: object, **kw: object) -> StoreValu
 
 
 def test_bad_account_values_are_refused(store: Store) -> None:
-    err = _refused("role", store.accounts.create, "root", "long enough", "superuser")
+    err = _refused("role", store.accounts.create, "root", "long enough indeed", "superuser")
     assert "unknown value 'superuser'" in str(err) and "admin, trainer, viewer" in str(err)
-    _refused("login", store.accounts.create, "   ", "long enough")
-    _refused("login", store.accounts.create, "two words", "long enough")
+    _refused("login", store.accounts.create, "   ", "long enough indeed")
+    _refused("login", store.accounts.create, "two words", "long enough indeed")
     _refused("password", store.accounts.create, "root", "short")
-    _refused("disabled", store.accounts.create, "root", "long enough", disabled="no")
+    _refused("disabled", store.accounts.create, "root", "long enough indeed", disabled="no")
     assert store.accounts.count() == 0
-    acc = store.accounts.create("root", "long enough", "admin")
+    acc = store.accounts.create("root", "long enough indeed", "admin")
     _refused("role", store.accounts.update, acc.id, role="owner")
     assert store.accounts.get(acc.id).role == "admin"
 

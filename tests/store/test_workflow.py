@@ -27,10 +27,10 @@ INTERVALS = {
 
 def accounts(store: Store) -> dict[str, int]:
     made = {
-        "admin": store.accounts.create("admin", "admin-password", "admin"),
-        "ann": store.accounts.create("ann", "ann-password", "trainer"),
-        "bob": store.accounts.create("bob", "bob-password", "trainer"),
-        "vic": store.accounts.create("vic", "vic-password", "viewer"),
+        "admin": store.accounts.create("admin", "admin-violet-harbour-92", "admin"),
+        "ann": store.accounts.create("ann", "ann-violet-harbour-92", "trainer"),
+        "bob": store.accounts.create("bob", "bob-violet-harbour-92", "trainer"),
+        "vic": store.accounts.create("vic", "vic-violet-harbour-92", "viewer"),
     }
     return {k: a.id for k, a in made.items()}
 

@@ -58,10 +58,13 @@ def test_run_bad_input_is_one_line_and_status_2(quick, tmp_path):
         (("run", quick(), "--machine", "odrive", "--device", str(tmp_path / "x")), "no such"),
         (
             ("run", quick(extra='[controller]\nkind = "measured"\n'), "--machine", "odrive",
-             "--device", "/dev/null"),
+             "--device", "/dev/null", "--torque-constant", "0.35"),
             "torque sensor",
         ),
         (("run", quick(), "--gear-ratio", "-2"), "gear_ratio"),
+        (("run", quick(), "--machine", "odrive", "--device", "/dev/null"), "torque constant"),
+        (("run", quick(), "--machine", "odrive", "--device", "/dev/null",
+          "--torque-constant", "0.35", "--vel-limit-tolerance", "0"), "vel_limit_tolerance"),
     ]  # fmt: skip
     for args, message in cases:
         r = ergoseek(*args)
@@ -82,7 +85,7 @@ def test_emulate_odrive_then_run_against_it(quick):
         assert path.startswith("/dev/pts/") and os.path.exists(path)
         r = ergoseek(
             "run", quick(2.0), "--machine", "odrive", "--device", path,
-            "--gear-ratio", "3", "--direction", "-1",
+            "--gear-ratio", "3", "--direction", "-1", "--torque-constant", "0.35",
             # generous for a loaded shared VM: the defaults (20 ms, 50 ms) are for hardware
             "--reply-timeout", "0.2", "--watchdog-timeout", "0.5",
         )  # fmt: skip
@@ -115,3 +118,37 @@ def test_ctrl_c_stops_with_zero_torque(quick):
     assert proc.returncode == 130, err
     assert "session stopped: stopped at once by the operator" in out
     assert not os.path.exists(f"/proc/{worker_pid}")
+
+
+@pytest.mark.parametrize(
+    ("drive", "words"),
+    [
+        (("--axis", "1"), "axis0 cannot enter closed-loop control"),
+        (("--uncalibrated",), "the motor is not calibrated"),
+        (("--firmware", "0.5.2"), "update to 0.5.4 or later"),
+        (("--factory-defaults",), "motor.config.torque_constant is 0.04"),
+    ],
+    ids=["wrong-axis", "uncalibrated", "firmware-0.5.2", "factory-torque-constant"],
+)
+def test_run_exits_at_once_with_one_line_when_the_machine_refuses_to_arm(quick, drive, words):
+    emu = subprocess.Popen(
+        [*CLI, "emulate-odrive", "--quiet", *drive],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        path = emu.stdout.readline().strip()  # type: ignore[union-attr]
+        t0 = time.monotonic()
+        r = ergoseek(
+            "run", quick(5.0), "--machine", "odrive", "--device", path,
+            "--torque-constant", "0.35", "--reply-timeout", "0.2", "--watchdog-timeout", "0.5",
+            timeout=30,
+        )  # fmt: skip
+        took = time.monotonic() - t0
+    finally:
+        emu.send_signal(signal.SIGTERM)
+        emu.communicate(timeout=10)
+    assert r.returncode == 1, r.stdout + r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], r.stderr
+    assert lines[0].startswith("ergoseek run: ")
+    assert took < 10.0  # worker start and arm: seconds, never a hang

@@ -106,14 +106,18 @@ def test_sigterm_zeroes_and_exits_cleanly():
         pid = worker.pid
         assert pid is not None
         os.kill(pid, signal.SIGTERM)
-        got = follow(worker, until="exited", timeout=10)
+        got = follow(worker, until="lost", timeout=10)
         end = got.end
         assert end is not None and end.status == "aborted"
         assert "SIGTERM" in end.reason
         assert got.of("exited")[0].reason == "terminated (SIGTERM)"
         batch = reader.read()  # type: ignore[attr-defined]
         assert batch.data[-1, INDEX["u_out"]] == 0.0
-        assert wait_for(lambda: worker.poll() == [] and worker.state == "closed", 5.0)
+        # it went when nobody here asked it to: lost (a reset replaces it), saying why
+        lost = got.of("lost")[0]
+        assert lost.reason == "worker exited: terminated (SIGTERM)" and lost.exitcode == 0
+        assert got.kinds()[-2:] == ["exited", "lost"]  # its own end, then the verdict
+        assert wait_for(lambda: worker.poll() == [] and worker.state == "lost", 5.0)
     finally:
         reader.close()  # type: ignore[attr-defined]
         worker.shutdown()

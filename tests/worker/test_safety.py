@@ -146,12 +146,11 @@ def test_passivity_breach_stops_the_session_at_the_first_breach():
 PARENT = textwrap.dedent(
     """
     import sys, time
-    from sessions.machine import MachineSpec
     from sessions.worker import Worker, WorkerOptions
-    from testing.live import scenario
+    from testing.live import odrive, scenario
     if __name__ == "__main__":
         limits = {"reply_timeout": 0.2, "watchdog_timeout": 0.5}
-        spec = MachineSpec(kind="odrive", device=sys.argv[1], **limits)
+        spec = odrive(sys.argv[1], **limits)
         worker = Worker(spec, WorkerOptions())
         worker.start()
         worker.start_session(scenario(duration=60.0), "orphan")

@@ -85,7 +85,9 @@ def test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drive
     t, w, phase = d[:, INDEX["t"]], d[:, INDEX["w"]], d[:, INDEX["phase"]]
     n = round(cfg.duration * cfg.rate)
     assert w[n - 1] > 2.0  # moving when the duration was reached
-    wind = d[n:][phase[n:] >= 0]  # the wind-down, under the loop's control
+    # the wind-down, under the loop's control: period n still ran on the reference computed
+    # before the duration was found reached; the stop's reference drives from n + 1 on
+    wind = d[n + 1 :][phase[n + 1 :] >= 0]
     stop = d[phase < 0]  # the torque ramp
     assert len(wind) > 0 and np.all(wind[:, INDEX["stage"]] == 1)  # the closing stop phase
     assert np.all(np.diff(wind[:, INDEX["wd"]]) <= 1e-12)  # the reference only slows
@@ -105,7 +107,7 @@ def test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drive
         ("stop", "stop"),
         ("stop", "relax"),
     ]
-    assert stages[1].stage.start == pytest.approx(cfg.duration)
+    assert stages[1].stage.start == pytest.approx(cfg.duration + 1 / cfg.rate)  # period n + 1
     assert got.end is not None
     assert got.end.summary.duration == pytest.approx(t[-1] - len(stop) / 1e3, abs=2e-3)
 
@@ -137,7 +139,7 @@ def test_bad_requests_are_refused_where_they_are_made(worker):
     end = follow(worker).end
     assert end is not None and end.status == "stopped"
     assert worker.state == "idle"
-    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null"))
+    odrive = Worker(MachineSpec(kind="odrive", device="/dev/null", torque_constant=0.1))
     with pytest.raises(ValueError, match="torque sensor"):
         odrive.start_session(scenario(controller={"kind": "measured"}), "x")
 

@@ -1,8 +1,9 @@
 """The History tab: a user's sessions, their optimum across sessions, any past session's
 charts (the store's telemetry decimated to 2000 points, min/max kept) and its CSV download.
 
-Everything here only reads, so the viewers' dashboard has it too. Loads run on the dashboard's
-I/O threads, never on viser's loop nor the web process's."""
+Everything here only reads, so the viewers' dashboard has it too. Each browser has its own
+(its picks are its own). Loads run on the dashboard's I/O threads, never on viser's loop nor
+the web process's."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import viser
 from sessions.store import NotFoundError, SessionRecord, UserRecord
 from sessions.telemetry import NAMES
 from webui.charts import HISTORY_POINTS, SessionCharts, plottable, trend_chart, trend_scales
-from webui.context import Context
+from webui.context import Context, relabel
+from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
 
 NO_SESSIONS = "(no sessions)"
 SESSION_LIMIT = 50
@@ -24,35 +26,64 @@ def session_label(s: SessionRecord) -> str:
     return f"#{s.id} · {when} · {s.status}{optimum}"
 
 
-def session_markdown(s: SessionRecord) -> str:
+def session_markdown(s: SessionRecord) -> Markdown:
     cfg = s.config
     seeker = cfg.get("seeker", {}) if isinstance(cfg, dict) else {}
     controller = cfg.get("controller", {}) if isinstance(cfg, dict) else {}
-    optimum = (
-        f"**{s.optimum_w:.3f} rad/s** ({s.optimum_p:.3f} W){' converged' if s.converged else ''}"
-        if s.optimum_w is not None and s.optimum_p is not None
-        else "none"
-    )
+    if s.optimum_w is not None and s.optimum_p is not None:
+        converged = md(" converged") if s.converged else md("")
+        optimum = md("**{:.3f} rad/s** ({:.3f} W){}", s.optimum_w, s.optimum_p, converged)
+    else:
+        optimum = md("none")
+    reason = md(" ({})", s.abort_reason) if s.abort_reason else md("")
     lines = [
-        f"Session **#{s.id}** · {s.status}" + (f" ({s.abort_reason})" if s.abort_reason else ""),
-        f"{controller.get('kind', '?')} controller · {seeker.get('kind', '?')} seeker · "
-        f"{s.duration:.1f} s · {s.evaluation_count} evaluations",
-        f"Optimum: {optimum}",
-        f"Mean power {s.mean_power:.3f} W · peak {s.peak_power:.3f} W · work {s.work:.1f} J · "
-        f"min W(t) {s.passivity_min:.3g} J",
-        f"[Download CSV (full rate)](/api/v1/sessions/{s.id}/telemetry.csv)",
+        md("Session **#{}** · {}{}", s.id, s.status, reason),
+        md(
+            "{} controller · {} seeker · {:.1f} s · {} evaluations",
+            controller.get("kind", "?"),
+            seeker.get("kind", "?"),
+            s.duration,
+            s.evaluation_count,
+        ),
+        md("Optimum: {}", optimum),
+        md(
+            "Mean power {:.3f} W · peak {:.3f} W · work {:.1f} J · min W(t) {:.3g} J",
+            s.mean_power,
+            s.peak_power,
+            s.work,
+            s.passivity_min,
+        ),
+        md("[Download CSV (full rate)](/api/v1/sessions/{}/telemetry.csv)", int(s.id)),
     ]
-    return "  \n".join(lines)
+    return md_lines(lines)
+
+
+def sessions_table(
+    user: UserRecord, total: int, sessions: list[SessionRecord], velocity: float | None
+) -> Markdown:
+    """A user's head line and their latest sessions as a table."""
+    count = md("{} session{}", total, "" if total == 1 else "s")
+    current = (
+        md(" · current optimum **{:.3f} rad/s**", velocity) if velocity is not None else md("")
+    )
+    lines = [md("**{}** · {}{}", user.name, count, current)]
+    if sessions:
+        lines += [md(""), md("| # | started | status | optimum |"), md("|---|---|---|---|")]
+        for s in sessions[:10]:
+            opt = f"{s.optimum_w:.3f}" if s.optimum_w is not None else "—"
+            started = s.started_at.strftime("%m-%d %H:%M:%S")
+            lines.append(md("| {} | {} | {} | {} |", s.id, started, s.status, opt))
+    return md_join("\n", lines)
 
 
 class HistoryTab:
     def __init__(self, gui: viser.GuiApi, ctx: Context) -> None:
         self.ctx = ctx
         self.user = gui.add_dropdown("History of", ctx.user_options())
-        self.summary = gui.add_markdown("Pick a user.")
+        self.summary = MarkdownBox(gui, md("Pick a user."))
         self.trend = trend_chart(gui)
         self.session = gui.add_dropdown("Session", (NO_SESSIONS,))
-        self.detail = gui.add_markdown(" ")
+        self.detail = MarkdownBox(gui, md(" "))
         self.charts = SessionCharts(gui)
         self.user.on_update(lambda _: ctx.background(self.load_user))
         self.session.on_update(lambda _: ctx.background(self.load_session))
@@ -61,7 +92,7 @@ class HistoryTab:
     def load_user(self) -> None:
         user = self.ctx.user_by_label(self.user.value)
         if user is None:
-            self.summary.content = "Pick a user."
+            self.summary.show(md("Pick a user."))
             self._sessions = {}
             self.session.options = (NO_SESSIONS,)
             return
@@ -69,21 +100,8 @@ class HistoryTab:
         page = store.sessions.list(user_id=user.id, limit=SESSION_LIMIT)
         history = store.setpoints.history(user.id)
         current = store.setpoints.current(user.id)
-        count = f"{page.total} session" + ("s" if page.total != 1 else "")
-        head = f"**{user.name}** · {count}"
-        if current is not None:
-            head += f" · current optimum **{current.velocity:.3f} rad/s**"
-        lines = [head]
-        if page.items:
-            lines.append("")
-            lines.append("| # | started | status | optimum |")
-            lines.append("|---|---|---|---|")
-            for s in page.items[:10]:
-                opt = f"{s.optimum_w:.3f}" if s.optimum_w is not None else "—"
-                lines.append(
-                    f"| {s.id} | {s.started_at.strftime('%m-%d %H:%M:%S')} | {s.status} | {opt} |"
-                )
-        self.summary.content = "\n".join(lines)
+        velocity = current.velocity if current is not None else None
+        self.summary.show(sessions_table(user, page.total, page.items, velocity))
         ordered = sorted(history, key=lambda r: r.created_at)
         when = np.array([r.created_at.timestamp() for r in ordered], dtype=np.float64)
         self.trend.scales = trend_scales(when)
@@ -99,7 +117,7 @@ class HistoryTab:
     def load_session(self) -> None:
         session_id = self._sessions.get(self.session.value)
         if session_id is None:
-            self.detail.content = " "
+            self.detail.show(md(" "))
             self.charts.clear()
             return
         store = self.ctx.store
@@ -107,19 +125,18 @@ class HistoryTab:
             record = store.sessions.get(session_id)
             data = store.telemetry.load(session_id, points=HISTORY_POINTS)
         except NotFoundError:
-            self.detail.content = f"Session #{session_id} is gone."
+            self.detail.show(md("Session #{} is gone.", session_id))
             return
-        self.detail.content = session_markdown(record) + (
-            f"  \nCharts: {len(data)} of {data.samples} samples"
-            + (" (min/max per bucket)" if data.decimated else "")
-        )
+        bucket = md(" (min/max per bucket)") if data.decimated else md("")
+        charts = md("Charts: {} of {} samples{}", len(data), data.samples, bucket)
+        self.detail.show(md_lines([session_markdown(record), charts]))
         self.charts.show({name: data.columns[i] for i, name in enumerate(NAMES)})
 
-    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
-        current = self.user.value
+    def users_changed(self, options: tuple[str, ...]) -> None:
+        keep = relabel(self.user.value, options)
         self.user.options = options
-        if current in options and self.user.value != current:
-            self.user.value = current
+        if keep is not None and self.user.value != keep:
+            self.user.value = keep
         self.ctx.background(self.load_user)
 
     def session_finished(self, record: SessionRecord) -> None:

@@ -1,14 +1,15 @@
-"""The Live tab: machine status, the red E-STOP, session setup (user, the paper's presets,
-controller, seeker, bracket around the user's stored optimum, gains, limits), Start / Stop /
-Reset, and the event log.
+"""The Live tab of one browser: machine status, the red E-STOP, session setup (user, the
+paper's presets, controller, seeker, bracket around the user's stored optimum, gains,
+limits), Start / Stop / Reset, and the event log.
 
-Only the trainers' viser server gets the controls (``control=True``); the viewers' server
-shows the same status and log with nothing to press.
+Each browser has its own (``client.gui``): one trainer's setup is never another's. Only a
+trainer's or an admin's gets the controls; a viewer's shows the same status and log with
+nothing to press.
 
 Threads: E-STOP is an async callback on viser's loop that only schedules
 ``MachineService.estop`` on the web process's loop (no waiting, no store I/O, so nothing can
-delay it). Start / Stop / Reset are plain callbacks (viser runs them on its thread pool): they check
-the clicking account in the store, then wait for the web process's loop to do the action.
+delay it). Start / Stop / Reset are plain callbacks (viser runs them on its thread pool): they
+check the account in the store, then wait for the web process's loop to do the action.
 """
 
 from __future__ import annotations
@@ -27,15 +28,17 @@ from sessions.config import ControllerConfig, SeekerConfig
 from sessions.experiments import BRACKETS, PAPER_GAINS
 from sessions.requests import LimitsIn, RequestError, SessionStart, auto_bracket
 from sessions.store import (
+    AccountRecord,
     ConflictError,
     NotFoundError,
     SessionRecord,
     SetpointRecord,
     StoreValueError,
-    UserRecord,
 )
 from sessions.worker import WorkerError
-from webui.context import Context
+from webui.bridge import Who
+from webui.context import Context, relabel
+from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
 
 if TYPE_CHECKING:
     from webui.feed import LiveState
@@ -51,52 +54,80 @@ SEEKERS = ("brent", "parabolic", "perturbation", "fixed")
 DEFAULT_DURATION = 120.0
 
 
-def status_markdown(st: LiveState, user_name: str | None) -> str:
+def status_markdown(st: LiveState, user_name: str | None) -> Markdown:
     """Machine state, armed, fault, loop timing, the running (or last) session."""
     ms = st.status
     if ms is None:
-        return "Machine: **starting**"
-    state = ms.state
-    latched = " (latched: **Reset** to clear)" if state in LATCHED else ""
+        return md("Machine: **starting**")
+    latched = md(" (latched: **Reset** to clear)") if ms.state in LATCHED else md("")
     lines = [
-        f"Machine **{state}**{latched} · {'**armed**' if ms.armed else 'not armed'} · "
-        f"fault: {ms.fault or 'none'}"
+        md(
+            "Machine **{}**{} · {} · fault: {}",
+            ms.state,
+            latched,
+            md("**armed**") if ms.armed else "not armed",
+            ms.fault or "none",
+        )
     ]
     timing = ms.timing or {}
     if timing:
         lines.append(
-            f"Loop {ms.rate_hz:g} Hz · lateness p99 **{timing.get('p99_us', 0):.0f} µs** · "
-            f"missed {timing.get('missed', 0)} · overruns {timing.get('overruns', 0)}"
+            md(
+                "Loop {:g} Hz · lateness p99 **{:.0f} µs** · missed {} · overruns {}",
+                ms.rate_hz,
+                timing.get("p99_us", 0),
+                timing.get("missed", 0),
+                timing.get("overruns", 0),
+            )
         )
     else:
-        lines.append(f"Loop {ms.rate_hz:g} Hz · no timing yet")
+        lines.append(md("Loop {:g} Hz · no timing yet", ms.rate_hz))
     active = st.active
     if active is not None:
         t = st.window.last[0] if st.window.last is not None else 0.0
-        who = f" ({user_name})" if user_name else ""
+        who = md(" ({})", user_name) if user_name else md("")
         lines.append(
-            f"Session **#{active.session_id}**{who} running · {t:.1f} / {active.cfg.duration:g} s"
+            md(
+                "Session **#{}**{} running · {:.1f} / {:g} s",
+                active.session_id,
+                who,
+                t,
+                active.cfg.duration,
+            )
         )
     elif st.last_finished is not None:
         sid, status = st.last_finished
-        lines.append(f"Last session #{sid}: **{status}**")
+        lines.append(md("Last session #{}: **{}**", sid, status))
     else:
-        lines.append("No session running")
-    return "  \n".join(lines)
+        lines.append(md("No session running"))
+    return md_lines(lines)
+
+
+def running_markdown(st: LiveState) -> Markdown:
+    """What a viewer sees of the running session's setup."""
+    if st.active is None:
+        return md("Viewer: the dashboard without controls.")
+    cfg = st.active.cfg
+    bracket = ", ".join(f"{x:.3f}" for x in cfg.seeker.bracket)
+    return md(
+        "Running: {} controller, {} seeker, bracket ({}), {:g} s",
+        cfg.controller.kind,
+        cfg.seeker.kind,
+        bracket,
+        cfg.duration,
+    )
 
 
 class LiveTab:
-    def __init__(
-        self, gui: viser.GuiApi, server: viser.ViserServer, ctx: Context, *, control: bool
-    ) -> None:
+    def __init__(self, gui: viser.GuiApi, ctx: Context, who: Who) -> None:
         self.gui = gui
-        self.server = server
         self.ctx = ctx
-        self.control = control
-        self.status = gui.add_markdown("Machine: **starting**")
+        self.who = who
+        self.control = who.trainer
+        self.status = MarkdownBox(gui, md("Machine: **starting**"))
         self._shown: dict[str, Any] = {}
         self._starting = False
-        if control:
+        if self.control:
             self.estop = gui.add_button(
                 "E-STOP",
                 color="red",
@@ -109,20 +140,20 @@ class LiveTab:
             self._build_actions(gui)
             self._stored: SetpointRecord | None = None
         else:
-            self.setup = gui.add_markdown("Viewer: the dashboard without controls.")
-        self.log = gui.add_markdown(" ")
+            self.setup = MarkdownBox(gui, md("Viewer: the dashboard without controls."))
+        self.log = MarkdownBox(gui, md(" "))
 
     def _build_setup(self, gui: viser.GuiApi) -> None:
         """The session's user, preset, controller, seeker, bracket, gains and limits."""
         ctx, settings = self.ctx, self.ctx.settings
         self.user = gui.add_dropdown("User", ctx.user_options())
-        self.optimum = gui.add_markdown("Stored optimum: —")
+        self.optimum = MarkdownBox(gui, md("Stored optimum: —"))
         self.preset = gui.add_dropdown("Preset", tuple(PRESETS))
         self.duration = gui.add_number(
             "Duration (s)", DEFAULT_DURATION, min=1.0, max=3600.0, step=1.0
         )
         self.controller = gui.add_dropdown("Controller", tuple(CONTROLLERS))
-        self.controller_help = gui.add_markdown(CONTROLLERS["rise"])
+        self.controller_help = MarkdownBox(gui, md("{}", CONTROLLERS["rise"]))
         self.seeker = gui.add_dropdown("Seeker", SEEKERS)
         self.objective = gui.add_dropdown("Objective", ("power", "surrogate"))
         self.bracket_mode = gui.add_dropdown("Bracket", (BRACKET_AUTO, BRACKET_CUSTOM))
@@ -156,14 +187,14 @@ class LiveTab:
         self.start = gui.add_button("Start", color="green", icon=viser.Icon.PLAYER_PLAY)
         self.stop = gui.add_button("Stop", icon=viser.Icon.PLAYER_STOP, disabled=True)
         self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, disabled=True)
-        self.message = gui.add_markdown(" ")
+        self.message = MarkdownBox(gui, md(" "))
         self.start.on_click(self._on_start)
         self.stop.on_click(self._on_stop)
         self.reset.on_click(self._on_reset)
 
     # -- setup ---
     def _show_controller(self) -> None:
-        self.controller_help.content = CONTROLLERS[self.controller.value]
+        self.controller_help.show(md("{}", CONTROLLERS.get(self.controller.value, "?")))
 
     def _apply_preset(self) -> None:
         name = PRESETS[self.preset.value]
@@ -190,23 +221,29 @@ class LiveTab:
         for g in (self.g1, self.g2, self.g3):
             g.disabled = auto
         if user is None:
-            self.optimum.content = "Stored optimum: — (pick or add a user)"
+            self.optimum.show(md("Stored optimum: — (pick or add a user)"))
             return
         current = self.ctx.store.setpoints.current(user.id)
         self._stored = current
         if current is None:
-            text = f"Stored optimum for {user.name}: **none yet**"
+            text = md("Stored optimum for {}: **none yet**", user.name)
         else:
-            power = f", {current.power:.3f} W" if current.power is not None else ""
-            source = f", session #{current.session_id}" if current.session_id else ""
-            v = current.velocity
-            text = f"Stored optimum for {user.name}: **{v:.3f} rad/s**{power}{source}"
+            power = md(", {:.3f} W", current.power) if current.power is not None else md("")
+            source = md(", session #{}", current.session_id) if current.session_id else md("")
+            text = md(
+                "Stored optimum for {}: **{:.3f} rad/s**{}{}",
+                user.name,
+                current.velocity,
+                power,
+                source,
+            )
         if auto:  # the bracket the server's policy will choose (sessions.requests)
             optimum = current.velocity if current is not None else None
             bracket, around = auto_bracket(optimum, float(self.max_velocity.value))
-            text += " · bracket around it" if around else " · bracket: the default"
+            note = md(" · bracket around it") if around else md(" · bracket: the default")
+            text = md_join("", [text, note])
             self.g1.value, self.g2.value, self.g3.value = (round(float(x), 3) for x in bracket)
-        self.optimum.content = text
+        self.optimum.show(text)
 
     def request(self) -> SessionStart:
         """The session to start, from the widgets (raises ValueError / ValidationError)."""
@@ -235,95 +272,87 @@ class LiveTab:
         )
 
     # -- actions ---
-    def _say(self, text: str) -> None:
-        self.message.content = f"{time.strftime('%H:%M:%S')} {text}"
-
-    def _refuse(self, event: viser.GuiEvent, what: str) -> None:
-        self._say(f"{what}: not allowed from this connection")
-        if event.client is not None:
-            event.client.add_notification(
-                what, "Only a logged-in trainer may do this.", color="red", auto_close_seconds=5.0
-            )
+    def _say(self, text: Markdown) -> None:
+        self.message.show(md("{} {}", time.strftime("%H:%M:%S"), text))
 
     async def _on_estop(self, event: viser.GuiEvent) -> None:
-        """On viser's loop: schedule the e-stop on the web process's loop, nothing else."""
-        account_id = self.ctx.bridge.proxied_account_id(self.server, event.client_id)
-        if account_id is None:
-            self._refuse(event, "E-STOP")
-            return
-        self.ctx.bridge.soon(self._estop_now, account_id)
+        """On viser's loop: schedule the e-stop on the web process's loop, nothing else (this
+        button exists only in a trainer's own dashboard)."""
+        self.ctx.bridge.soon(self._estop_now)
 
-    def _estop_now(self, account_id: int) -> None:
+    def _estop_now(self) -> None:
         """On the web process's loop."""
-        log.warning("E-STOP from the dashboard (account %s)", account_id)
+        log.warning("E-STOP from the dashboard (account %s)", self.who.account_id)
         try:
             self.ctx.bridge.machine.estop()
         except (BusyError, WorkerError) as exc:
-            self._say(f"E-STOP could not reach the worker: {exc}")
+            self._say(md("E-STOP could not reach the worker: {}", exc))
             return
-        self._say("**E-STOP** sent: zero torque, latched until Reset")
+        self._say(md("**E-STOP** sent: zero torque, latched until Reset"))
+
+    def _allowed(self, what: str) -> AccountRecord | None:
+        account = self.ctx.bridge.trainer(self.who)
+        if account is None:
+            self._say(md("{}: not allowed (this login is no longer a trainer's)", what))
+        return account
 
     def _on_start(self, event: viser.GuiEvent) -> None:
-        account = self.ctx.bridge.trainer(self.server, event.client_id)
+        account = self._allowed("Start")
         if account is None:
-            self._refuse(event, "Start")
             return
         try:
             req = self.request()
         except ValidationError as exc:
             err = exc.errors()[0]
             where = ".".join(str(x) for x in err["loc"])
-            self._say(f"Not started: {where}: {err['msg'].removeprefix('Value error, ')}")
+            self._say(md("Not started: {}: {}", where, err["msg"].removeprefix("Value error, ")))
             return
         except ValueError as exc:
-            self._say(f"Not started: {exc}")
+            self._say(md("Not started: {}", exc))
             return
         self._starting = True
         self._set("start", True, lambda v: setattr(self.start, "disabled", v))
-        self._say("starting…")
+        self._say(md("starting…"))
         try:
             record = self.ctx.bridge.run(self.ctx.bridge.machine.start(req, account.id))
         except RequestError as exc:
-            self._say(f"Not started: {exc.field}: {exc.reason}")
+            self._say(md("Not started: {}: {}", exc.field, exc.reason))
         except (BusyError, WorkerError, ConflictError, NotFoundError, StoreValueError) as exc:
-            self._say(f"Not started: {exc}")
+            self._say(md("Not started: {}", exc))
         except TimeoutError:
-            self._say("Not started: the machine did not answer in time")
+            self._say(md("Not started: the machine did not answer in time"))
         else:
-            self._say(f"Session **#{record.id}** started by {account.login}")
+            self._say(md("Session **#{}** started by {}", record.id, account.login))
         finally:
             self._starting = False
 
     def _on_stop(self, event: viser.GuiEvent) -> None:
-        account = self.ctx.bridge.trainer(self.server, event.client_id)
-        if account is None:
-            self._refuse(event, "Stop")
+        if self._allowed("Stop") is None:
             return
         machine = self.ctx.bridge.machine
         active = self.ctx.bridge.call(machine.active_session)
         if active is None:
-            self._say("No session to stop")
+            self._say(md("No session to stop"))
             return
         try:
             self.ctx.bridge.call(machine.stop, active.session_id)
         except (ConflictError, BusyError, WorkerError) as exc:
-            self._say(f"Stop: {exc}")
+            self._say(md("Stop: {}", exc))
         else:
-            self._say(f"Stopping session #{active.session_id} (torque ramped out)")
+            self._say(md("Stopping session #{} (torque ramped out)", active.session_id))
 
     def _on_reset(self, event: viser.GuiEvent) -> None:
-        account = self.ctx.bridge.trainer(self.server, event.client_id)
+        account = self._allowed("Reset")
         if account is None:
-            self._refuse(event, "Reset")
             return
         try:
             self.ctx.bridge.run(self.ctx.bridge.machine.reset())
         except (BusyError, WorkerError) as exc:
-            self._say(f"Reset: {exc}")
+            self._say(md("Reset: {}", exc))
         except TimeoutError:
-            self._say("Reset: the machine did not answer in time")
+            self._say(md("Reset: the machine did not answer in time"))
         else:
-            self._say(f"Reset by {account.login}: the machine never restarts by itself")
+            self._say(md("Reset by {}: the machine never restarts by itself", account.login))
 
     # -- rendering (feed thread) ---
     def _set(self, key: str, value: object, apply: Callable[[Any], object]) -> None:
@@ -331,10 +360,11 @@ class LiveTab:
             self._shown[key] = value
             apply(value)
 
-    def render(self, st: LiveState, user_name: str | None) -> None:
-        status = status_markdown(st, user_name)
-        self._set("status", status, lambda v: setattr(self.status, "content", v))
-        self._set("log", "  \n".join(st.log) or " ", lambda v: setattr(self.log, "content", v))
+    def render(self, st: LiveState, status: Markdown, log_lines: Markdown) -> None:
+        """The status, the log and what may be pressed now (feed thread, ~6 times a
+        second; only what changed is sent)."""
+        self.status.show(status)
+        self.log.show(log_lines)
         if self.control:
             ms = st.status
             state = ms.state if ms is not None else "starting"
@@ -342,22 +372,16 @@ class LiveTab:
             self._set("start", not idle, lambda v: setattr(self.start, "disabled", v))
             self._set("stop", st.active is None, lambda v: setattr(self.stop, "disabled", v))
             self._set("reset", state not in LATCHED, lambda v: setattr(self.reset, "disabled", v))
-        elif st.active is not None:
-            cfg = st.active.cfg
-            self._set(
-                "setup",
-                f"Running: {cfg.controller.kind} controller, {cfg.seeker.kind} seeker, "
-                f"bracket {tuple(round(x, 3) for x in cfg.seeker.bracket)}, {cfg.duration:g} s",
-                lambda v: setattr(self.setup, "content", v),
-            )
+        else:
+            self.setup.show(running_markdown(st))
 
-    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
+    def users_changed(self, options: tuple[str, ...]) -> None:
         if not self.control:
             return
-        current = self.user.value
+        keep = relabel(self.user.value, options)
         self.user.options = options
-        if current in options and self.user.value != current:
-            self.user.value = current
+        if keep is not None and self.user.value != keep:
+            self.user.value = keep
         self.ctx.background(self._show_optimum)
 
     def session_finished(self, record: SessionRecord) -> None:

@@ -1,6 +1,6 @@
-"""The Users tab (trainers only): add a user or edit one — name, notes, body mass, limb, and
-the simulated person who stands in for them on the simulated machine. Input is validated and
-saved as the REST API does it (:mod:`server.service.users`)."""
+"""The Users tab (trainers only, each browser its own form): add a user or edit one — name,
+notes, body mass, limb, and the simulated person who stands in for them on the simulated
+machine. Input is validated and saved as the REST API does it (:mod:`server.service.users`)."""
 
 from __future__ import annotations
 
@@ -12,16 +12,18 @@ from pydantic import ValidationError
 
 from server.service.users import UserIn, UserPatch, create_user, update_user
 from sessions.config import UserConfig
-from sessions.store import NotFoundError, StoreValueError, UserRecord
-from webui.context import Context, user_label
+from sessions.store import NotFoundError, StoreValueError
+from webui.bridge import Who
+from webui.context import Context, relabel, user_label
+from webui.escape import Markdown, MarkdownBox, md
 
 NEW_USER = "+ new user"
 
 
 class UsersTab:
-    def __init__(self, gui: viser.GuiApi, server: viser.ViserServer, ctx: Context) -> None:
-        self.server = server
+    def __init__(self, gui: viser.GuiApi, ctx: Context, who: Who) -> None:
         self.ctx = ctx
+        self.who = who
         self.profile = gui.add_dropdown("Profile", (NEW_USER, *self._existing()))
         self.name = gui.add_text("Name", "")
         self.notes = gui.add_text("Notes", "", multiline=True)
@@ -44,7 +46,7 @@ class UsersTab:
                 "Fatigue τ (s, 0 = none)", sim.fatigue_tau, min=0.0, max=1e6, step=1.0
             )
         self.save = gui.add_button("Save user", icon=viser.Icon.DEVICE_FLOPPY)
-        self.message = gui.add_markdown(" ")
+        self.message = MarkdownBox(gui, md(" "))
         self.profile.on_update(lambda _: ctx.background(self._load))
         self.save.on_click(self._on_save)
 
@@ -94,13 +96,12 @@ class UsersTab:
             "sim_profile": sim,
         }
 
-    def _say(self, text: str) -> None:
-        self.message.content = f"{time.strftime('%H:%M:%S')} {text}"
+    def _say(self, text: Markdown) -> None:
+        self.message.show(md("{} {}", time.strftime("%H:%M:%S"), text))
 
     def _on_save(self, event: viser.GuiEvent) -> None:
-        account = self.ctx.bridge.trainer(self.server, event.client_id)
-        if account is None:
-            self._say("Not saved: only a logged-in trainer may edit users")
+        if self.ctx.bridge.trainer(self.who) is None:
+            self._say(md("Not saved: only a logged-in trainer may edit users"))
             return
         picked = self.ctx.user_by_label(self.profile.value)
         store = self.ctx.store
@@ -114,18 +115,22 @@ class UsersTab:
         except ValidationError as exc:
             err = exc.errors()[0]
             where = ".".join(str(x) for x in err["loc"])
-            self._say(f"Not saved: {where}: {err['msg'].removeprefix('Value error, ')}")
+            self._say(md("Not saved: {}: {}", where, err["msg"].removeprefix("Value error, ")))
             return
         except (StoreValueError, NotFoundError) as exc:
-            self._say(f"Not saved: {exc}")
+            self._say(md("Not saved: {}", exc))
             return
-        self.ctx.refresh_users(select=record)
-        self._say(f"{verb} user **{record.name}** (#{record.id})")
+        self.ctx.refresh_users()
+        self._select(user_label(record))
+        self._say(md("{} user **{}** (#{})", verb, record.name, record.id))
 
-    def users_changed(self, options: tuple[str, ...], select: UserRecord | None) -> None:
+    def _select(self, label: str) -> None:
+        if label in self.profile.options and self.profile.value != label:
+            self.profile.value = label
+
+    def users_changed(self, options: tuple[str, ...]) -> None:
         existing = tuple(o for o in options if self.ctx.user_by_label(o) is not None)
-        current = self.profile.value
+        keep = relabel(self.profile.value, existing)
         self.profile.options = (NEW_USER, *existing)
-        wanted = user_label(select) if select is not None else current
-        if wanted in self.profile.options and self.profile.value != wanted:
-            self.profile.value = wanted
+        if keep is not None:
+            self._select(keep)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from sessions.machine.odrive.emulator.device import (
     AXIS_COUNT,
+    DEVICE_FAULTS,
+    FACTORY,
     Device,
     EmulatorConfig,
     EmulatorSnapshot,
@@ -20,6 +22,8 @@ from sessions.machine.odrive.emulator.pty import INJECTIONS, Injection, OdriveEm
 
 __all__ = [
     "AXIS_COUNT",
+    "DEVICE_FAULTS",
+    "FACTORY",
     "INJECTIONS",
     "Device",
     "EmulatorConfig",

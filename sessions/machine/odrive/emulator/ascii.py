@@ -1,15 +1,20 @@
 """The ASCII protocol as the device speaks it (firmware 0.5.x ``ascii_protocol.cpp``, checked
-line by line): one line in, the reply lines out.
+line by line): one line in, the reply lines out, as the device's firmware version does it.
 
 - ``;`` starts a comment; an optional ``*CK`` checksum (XOR of the bytes before ``*``) is
   verified (a mismatch: the line is ignored, no reply) and, if sent, echoed on the reply; an
-  empty line answers ``unknown command``;
+  empty line answers ``unknown command`` (0.5.2+; 0.5.1 says nothing);
 - the command letter picks one function, as the firmware dispatches: ``c a T`` torque setpoint
   (torque control, feeds the watchdog), ``u a`` feeds the watchdog, ``f a`` replies
   ``pos vel`` (``%f``, float32, turns and turns/s), ``r path`` / ``w path value`` on the
-  property tree (:mod:`.device`), ``sc`` clear errors, ``ss``/``se``/``sr``, ``i``, ``h``; the
-  position/velocity/trajectory commands (``p q v t``) answer ``not implemented`` here: the rig
-  runs in torque control only.
+  property tree (:mod:`.device`), ``sc`` clear errors (0.5.2+; 0.5.1 ignores it),
+  ``ss``/``se``/``sr``, ``i``, ``h``; the position/velocity/trajectory commands (``p q v t``)
+  answer ``not implemented`` here: the rig runs in torque control only;
+- ``r`` prints as the firmware's formatter does, into its 10-byte buffer (9 characters, cut
+  silently): unsigned error registers ``%ud`` in 0.5.2-0.5.3 (``0d``); 64-bit ones (``motor.error``
+  from 0.5.2, ``serial_number``) ``lu`` on the release builds (newlib-nano has no ``%llu``), which
+  cannot parse them either (a write answers ``not implemented``); 0.5.2-0.5.3 release builds
+  answer ``not implemented`` to every enum write (the CI-compiler bug fixed in 0.5.4).
 
 Arguments are read the way the firmware's ``sscanf`` reads them (:func:`scan`).
 """
@@ -22,12 +27,12 @@ from collections.abc import Callable
 
 from sessions.machine.odrive.emulator.device import (
     AXIS_COUNT,
-    FIRMWARE,
     HARDWARE,
     Axis,
     Device,
+    Kind,
 )
-from sessions.machine.odrive.protocol import MAX_LINE, checksum
+from sessions.machine.odrive.protocol import MAX_LINE, R_REPLY_MAX, checksum
 
 _FLOAT = re.compile(rb"\s*([+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan))", re.I)
 _UINT = re.compile(rb"\s*([+-]?\d+)")
@@ -60,14 +65,35 @@ def scan(text: bytes, spec: str) -> list[float | int | bytes]:
     return out
 
 
-def format_value(value: float | int | bool) -> bytes:
-    """As the firmware's 10-byte ``r`` buffer prints it: integers whole, floats ``%f`` cut to
-    9 characters."""
-    if isinstance(value, bool):
-        return b"%d" % int(value)
-    if isinstance(value, int):
-        return b"%d" % value
-    return (b"%f" % value)[:9]
+def format_value(value: float | int | bool, kind: Kind = "i32", dev: Device | None = None) -> bytes:
+    """As the firmware's 10-byte ``r`` buffer prints it: cut to 9 characters, floats ``%f``,
+    integers by their type and the firmware (``%ud``, ``lu``: see the module's docstring)."""
+    fw = dev.fw if dev is not None else None
+    if kind == "bool" or isinstance(value, bool):
+        return b"1" if value else b"0"
+    if kind == "f32" or isinstance(value, float):
+        text = b"%f" % value
+    elif kind in ("flags64", "u64") and fw is not None and _nano(dev) and fw.motor_error_64:
+        text = b"lu"  # "%llu" on newlib-nano
+    elif kind == "flags" and fw is not None and fw.uint_suffix:
+        text = b"%dd" % value  # "%ud": an unsigned, then a literal d
+    else:
+        text = b"%d" % value
+    return text[:R_REPLY_MAX]
+
+
+def _nano(dev: Device | None) -> bool:
+    return dev is not None and dev.rig.build == "release"
+
+
+def _refuses_write(dev: Device, kind: Kind) -> bool:
+    """This build cannot parse a value of this kind (the write answers ``not implemented``)."""
+    if not _nano(dev):
+        return False
+    fw = dev.fw
+    if kind in ("flags64", "u64") and fw.motor_error_64:
+        return True
+    return fw.enum_write_bug and kind in ("enum", "flags")
 
 
 def frame(reply: bytes, use_ck: bool, bad_ck: bool = False) -> bytes:
@@ -156,7 +182,8 @@ def read_property(dev: Device, cmd: bytes, now: float) -> list[bytes]:
     got = scan(cmd[1:], "s")
     if not got:
         raise RefusedError(INVALID_FORMAT)
-    return [format_value(dev.get(*_property(dev, got[0])))]  # type: ignore[arg-type]
+    ax, name = _property(dev, got[0])  # type: ignore[arg-type]
+    return [format_value(dev.get(ax, name), dev.kind(ax, name), dev)]
 
 
 def write_property(dev: Device, cmd: bytes, now: float) -> list[bytes]:
@@ -166,11 +193,11 @@ def write_property(dev: Device, cmd: bytes, now: float) -> list[bytes]:
         raise RefusedError(INVALID_FORMAT)
     ax, name = _property(dev, got[0])  # type: ignore[arg-type]
     prop = dev.writable(ax, name)
-    if len(got) < 2 or prop is None or ax is None:
+    if len(got) < 2 or prop is None or ax is None or _refuses_write(dev, prop.kind):
         raise RefusedError(NOT_IMPLEMENTED)
     raw: bytes = got[1]  # type: ignore[assignment]
     value: float | int | bool
-    if prop.kind is float:
+    if prop.kind == "f32":
         parsed = scan(raw, "f")
         if not parsed:
             raise RefusedError(NOT_IMPLEMENTED)
@@ -180,7 +207,7 @@ def write_property(dev: Device, cmd: bytes, now: float) -> list[bytes]:
         if not m:
             raise RefusedError(NOT_IMPLEMENTED)
         value = int(m.group(1))
-        if prop.kind is bool:
+        if prop.kind == "bool":
             value = bool(value)
     dev.write(ax, name, value, now)
     return []
@@ -189,7 +216,7 @@ def write_property(dev: Device, cmd: bytes, now: float) -> list[bytes]:
 def system(dev: Device, cmd: bytes, now: float) -> list[bytes]:
     """``sc`` clear errors, ``se`` erase the configuration, ``sr`` reboot, ``ss`` save."""
     sub = cmd[1:2]
-    if sub == b"c":
+    if sub == b"c" and dev.fw.has_sc:  # 0.5.1 has no "sc": nothing happens
         dev.clear_errors()
     elif sub in (b"e", b"r"):
         dev.reset_config(now, reboot=sub == b"r")
@@ -199,7 +226,7 @@ def system(dev: Device, cmd: bytes, now: float) -> list[bytes]:
 def info(dev: Device, cmd: bytes, now: float) -> list[bytes]:
     return [
         b"Hardware version: %d.%d-%dV" % HARDWARE,
-        b"Firmware version: %d.%d.%d" % FIRMWARE,
+        b"Firmware version: %d.%d.%d" % dev.fw.version,
         b"Serial number: 306135393235",
     ]
 
@@ -257,6 +284,8 @@ class AsciiProtocol:
             return []  # silently ignored, as the firmware does
         dev.lines += 1
         self.use_ck = use_ck
+        if not cmd and not dev.fw.empty_line_reply:
+            return []  # 0.5.1: "else if (cmd[0] != 0)": an empty line says nothing
         try:
             return COMMANDS.get(cmd[:1], _UNKNOWN)(dev, cmd, now)
         except RefusedError as refused:

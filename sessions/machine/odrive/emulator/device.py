@@ -1,19 +1,25 @@
 """The emulated ODrive itself: its property tree, the axis state machine, the torque-mode
-limits and watchdog of firmware 0.5.x, and the physics behind them: the engine's plant (1) with
-a simulated person on the handle. No I/O and no protocol: :mod:`.ascii` speaks to it, :mod:`.pty`
-serves it.
+limits, watchdog and error registers of firmware 0.5.1 … 0.5.6 (:class:`Firmware`, chosen by
+``EmulatorConfig.firmware``), and the physics behind them: the engine's plant (1) with a
+simulated person on the handle. No I/O and no protocol: :mod:`.ascii` speaks to it,
+:mod:`.pty` serves it.
 
 - the axis state machine: ``requested_state`` 8 enters closed-loop control if the axis has no
-  error, 1 goes idle;
+  error and is calibrated (``motor.is_calibrated``, ``encoder.is_ready``; else INVALID_STATE
+  and idle: the axis without a motor is never calibrated), 1 goes idle;
 - in closed loop, torque mode: the setpoint passes the torque-mode velocity limiter
-  (clamped to ``[(-vel_limit - v)·vel_gain, (vel_limit - v)·vel_gain]`` when
-  ``enable_torque_mode_vel_limit``), then ``torque_lim`` and ``current_lim·torque_constant``;
+  (clamped to ``[(-vel_limit - v)·vel_gain, (vel_limit - v)·vel_gain]`` when the limiter is
+  on, named per firmware), then ``torque_lim`` and ``current_lim·torque_constant``;
   ``|v| > vel_limit_tolerance·vel_limit`` with ``enable_overspeed_error`` sets the controller's
-  OVERSPEED error, the axis error CONTROLLER_FAILED and drops to idle;
-- the watchdog (``config.enable_watchdog``, ``config.watchdog_timeout``): if not fed within the
-  timeout, axis error WATCHDOG_TIMER_EXPIRED and idle, torque zero. It is checked on the physics
-  clock, so the plant sees zero torque from the expiry on (to one physics step), however late the
-  emulator's thread runs.
+  OVERSPEED error and drops to idle;
+- faults (overspeed, and those :meth:`Device.fault` injects: motor, encoder, e-stop, DC bus
+  under-voltage) land in the registers as each firmware puts them: the failed part's own
+  ``error``, its axis bit only in 0.5.1 and 0.5.5+, the DC bus in the axis error (0.5.1) or
+  the system error (0.5.2+);
+- the watchdog (``config.enable_watchdog``, ``config.watchdog_timeout``, the timeout taken at
+  each feed as the firmware does): if not fed within it, axis error WATCHDOG_TIMER_EXPIRED and
+  idle, torque zero, in every state. It is checked on the physics clock, so the plant sees zero
+  torque from the expiry on (to one physics step), however late the emulator's thread runs.
 
 The physics runs on its own fixed-step clock (``physics_rate``, 8 kHz like the firmware's control
 loop) against wall time: before anything is answered the plant is brought up to now
@@ -30,23 +36,41 @@ import time
 from array import array
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 from sessions.config import MachineConfig, SessionConfig, UserConfig
 from sessions.machine.odrive.protocol import (
     AXIS_ERROR_CONTROLLER_FAILED,
+    AXIS_ERROR_DC_BUS_UNDER_VOLTAGE,
+    AXIS_ERROR_ENCODER_FAILED,
+    AXIS_ERROR_ESTOP_REQUESTED,
+    AXIS_ERROR_INVALID_STATE,
+    AXIS_ERROR_MOTOR_FAILED,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     AXIS_STATE_IDLE,
     CONTROL_MODE_TORQUE_CONTROL,
     CONTROLLER_ERROR_OVERSPEED,
+    ENCODER_ERROR_NO_RESPONSE,
+    ERROR_REGISTERS,
+    FIRMWARES,
+    MOTOR_ERROR_CURRENT_LIMIT_VIOLATION,
+    MOTOR_ERROR_SYSTEM_LEVEL,
+    MOTOR_ERROR_UNKNOWN_TORQUE,
+    SYSTEM_ERROR_DC_BUS_UNDER_VOLTAGE,
+    Firmware,
 )
 from sessions.machine.spec import MachineSpec
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
 
 AXIS_COUNT = 2
-FIRMWARE = (0, 5, 6)
+FIRMWARE = (0, 5, 6)  # the default
 HARDWARE = (3, 6, 56)
+Build = Literal["release", "source"]
+DeviceFault = Literal["motor", "encoder", "estop", "undervoltage", "overspeed"]
+DEVICE_FAULTS: tuple[str, ...] = get_args(DeviceFault)
+FACTORY = {"torque_constant": 0.04, "current_lim": 10.0}  # motor.hpp's defaults
 SERIAL_NUMBER = 0x3061_3539_3235
 TWO_PI = 2.0 * math.pi
 # The rig's defaults are the machine's and the drive's: defined once, in their own models.
@@ -56,7 +80,9 @@ _DRIVE = MachineSpec()
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    """The emulated rig: who pushes, the handle's inertia and the drive train."""
+    """The emulated rig: who pushes, the handle's inertia, the drive train, and the drive:
+    its firmware (version and build), its motor settings, whether the axis is calibrated, and
+    a partial line left in its buffer by a host that died mid-line."""
 
     user: UserConfig = field(default_factory=UserConfig)
     inertia: float = _MACHINE.inertia  # J at the handle, kg·m²
@@ -66,9 +92,15 @@ class EmulatorConfig:
     physics_rate: float = 8000.0  # Hz
     seed: int = 1
     initial_turns: float = 0.0  # encoder position at power-up, motor turns
-    current_lim: float = 60.0  # A (motor.config.current_lim default of this rig)
-    torque_constant: float = 0.35  # N·m/A: 21 N·m at the current limit
+    current_lim: float = 60.0  # A (motor.config.current_lim of this rig; factory: 10)
+    torque_constant: float = 0.35  # N·m/A: 21 N·m at the current limit (factory: 0.04)
     vbus: float = 24.0
+    firmware: tuple[int, int, int] = FIRMWARE
+    # "release": the released binaries (newlib-nano: 64-bit integers print "lu" and cannot be
+    # written; 0.5.2-0.5.3 refuse enum writes); "source": a build with a full printf/scanf
+    build: Build = "release"
+    calibrated: bool = True  # the handle's axis: motor calibrated and encoder ready
+    partial_line: str = ""  # bytes already in the device's line buffer at power-up
 
     def __post_init__(self) -> None:
         if self.direction not in (1, -1):
@@ -77,6 +109,17 @@ class EmulatorConfig:
             raise ValueError("gear_ratio and inertia must be positive, physics_rate ≥ 100 Hz")
         if self.axis not in (0, 1):
             raise ValueError("axis must be 0 or 1")
+        if tuple(self.firmware) not in FIRMWARES:
+            known = ", ".join(f.name for f in FIRMWARES.values())
+            raise ValueError(f"firmware must be one of {known}")
+        if not (self.current_lim > 0 and self.torque_constant > 0):
+            raise ValueError("current_lim and torque_constant must be positive")
+        if self.build not in get_args(Build):
+            raise ValueError("build must be 'release' or 'source'")
+
+    @property
+    def fw(self) -> Firmware:
+        return FIRMWARES[tuple(self.firmware)]  # type: ignore[index]
 
     @classmethod
     def from_session(cls, cfg: SessionConfig, **kw: object) -> EmulatorConfig:
@@ -88,13 +131,15 @@ class EmulatorConfig:
     def for_rig(cls, drive: MachineSpec, machine: MachineConfig, **kw: object) -> EmulatorConfig:
         """The device a drive spec talks to: the same gear, direction and axis, the machine's
         inertia at the handle."""
-        return cls(
-            inertia=machine.inertia,
-            gear_ratio=drive.gear_ratio,
-            direction=drive.direction,
-            axis=drive.axis,
-            **kw,  # type: ignore[arg-type]
-        )
+        given: dict[str, object] = {
+            "inertia": machine.inertia,
+            "gear_ratio": drive.gear_ratio,
+            "direction": drive.direction,
+            "axis": drive.axis,
+        }
+        if drive.torque_constant is not None:  # the motor the drive spec expects
+            given["torque_constant"] = drive.torque_constant
+        return cls(**{**given, **kw})  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -109,6 +154,9 @@ class EmulatorSnapshot:
     current_state: int
     error: int
     controller_error: int
+    motor_error: int
+    encoder_error: int
+    system_error: int
     watchdog_enabled: bool
     last_feed: float  # monotonic time of the last watchdog feed (-inf: never)
     watchdog_tripped_at: float | None  # physics time of the last expiry
@@ -118,36 +166,48 @@ class EmulatorSnapshot:
     user_work: float  # true ∫ τ w dt of the person, J
 
 
+# How a property is held and printed: f32 (``%f``), bool, u8 (``%u``), i32 and enum (``%d``),
+# flags (an error register: uint32, ``%u`` or ``%ud``, written as an enum), flags64 (motor.error
+# from 0.5.2: uint64), u64.
+Kind = Literal["f32", "bool", "u8", "i32", "enum", "flags", "flags64", "u64"]
+
+
 @dataclass
 class Prop:
-    kind: type
+    kind: Kind
     value: float | int | bool
     writable: bool = True
 
 
-def axis_props(rig: EmulatorConfig) -> dict[str, Prop]:
+def axis_props(rig: EmulatorConfig, motor: bool) -> dict[str, Prop]:
+    """One axis' properties; ``motor``: the handle's motor is on this axis."""
+    fw = rig.fw
+    ready = motor and rig.calibrated
     return {
-        "error": Prop(int, 0),
-        "current_state": Prop(int, AXIS_STATE_IDLE, writable=False),
-        "requested_state": Prop(int, 0),
-        "config.enable_watchdog": Prop(bool, False),
-        "config.watchdog_timeout": Prop(float, 0.0),
-        "controller.error": Prop(int, 0),
-        "controller.input_torque": Prop(float, 0.0),
-        "controller.config.control_mode": Prop(int, 3),
-        "controller.config.input_mode": Prop(int, 1),
-        "controller.config.vel_limit": Prop(float, 2.0),
-        "controller.config.vel_gain": Prop(float, 1.0 / 6.0),
-        "controller.config.vel_limit_tolerance": Prop(float, 1.2),
-        "controller.config.enable_torque_mode_vel_limit": Prop(bool, True),
-        "controller.config.enable_overspeed_error": Prop(bool, True),
-        "motor.error": Prop(int, 0),
-        "motor.config.torque_lim": Prop(float, math.inf),
-        "motor.config.current_lim": Prop(float, rig.current_lim),
-        "motor.config.torque_constant": Prop(float, rig.torque_constant),
-        "encoder.error": Prop(int, 0),
-        "encoder.pos_estimate": Prop(float, 0.0, writable=False),
-        "encoder.vel_estimate": Prop(float, 0.0, writable=False),
+        "error": Prop("flags", 0),
+        "current_state": Prop("enum", AXIS_STATE_IDLE, writable=False),
+        "requested_state": Prop("enum", 0),
+        "config.enable_watchdog": Prop("bool", False),
+        "config.watchdog_timeout": Prop("f32", 0.0),
+        "controller.error": Prop("flags", 0),
+        "controller.input_torque": Prop("f32", 0.0),
+        "controller.config.control_mode": Prop("enum", 3),
+        "controller.config.input_mode": Prop("enum", 1),
+        "controller.config.vel_limit": Prop("f32", 2.0),
+        "controller.config.vel_gain": Prop("f32", 1.0 / 6.0),
+        "controller.config.vel_limit_tolerance": Prop("f32", 1.2),
+        fw.limiter: Prop("bool", True),
+        "controller.config.enable_overspeed_error": Prop("bool", True),
+        "motor.error": Prop("flags64" if fw.motor_error_64 else "flags", 0),
+        "motor.is_calibrated": Prop("bool", ready, writable=False),
+        "motor.config.torque_lim": Prop("f32", math.inf),
+        "motor.config.current_lim": Prop("f32", rig.current_lim),
+        "motor.config.current_lim_margin": Prop("f32", 8.0),
+        "motor.config.torque_constant": Prop("f32", rig.torque_constant),
+        "encoder.error": Prop("flags", 0),
+        "encoder.is_ready": Prop("bool", ready, writable=False),
+        "encoder.pos_estimate": Prop("f32", 0.0, writable=False),
+        "encoder.vel_estimate": Prop("f32", 0.0, writable=False),
     }
 
 
@@ -155,15 +215,17 @@ class Axis:
     """One axis' property tree, with direct references to the properties the physics reads."""
 
     __slots__ = (
-        "props", "last_feed", "tripped_at", "applied", "wd_enable", "wd_timeout", "state",
-        "error", "ctrl_error", "input_torque", "control_mode", "vel_limit", "vel_gain",
-        "vel_tolerance", "torque_mode_vel_limit", "overspeed_error", "torque_lim",
-        "current_lim", "torque_constant",
+        "props", "last_feed", "feed_timeout", "tripped_at", "applied", "wd_enable",
+        "wd_timeout", "state", "error", "ctrl_error", "motor_error", "encoder_error",
+        "input_torque", "control_mode", "vel_limit", "vel_gain", "vel_tolerance",
+        "torque_mode_vel_limit", "overspeed_error", "torque_lim", "current_lim",
+        "torque_constant",
     )  # fmt: skip
 
-    def __init__(self, rig: EmulatorConfig) -> None:
-        p = self.props = axis_props(rig)
+    def __init__(self, rig: EmulatorConfig, motor: bool) -> None:
+        p = self.props = axis_props(rig, motor)
         self.last_feed = -math.inf
+        self.feed_timeout = 0.0  # the watchdog_timeout taken at the last feed
         self.tripped_at: float | None = None
         self.applied = 0.0
         self.wd_enable = p["config.enable_watchdog"]
@@ -171,12 +233,14 @@ class Axis:
         self.state = p["current_state"]
         self.error = p["error"]
         self.ctrl_error = p["controller.error"]
+        self.motor_error = p["motor.error"]
+        self.encoder_error = p["encoder.error"]
         self.input_torque = p["controller.input_torque"]
         self.control_mode = p["controller.config.control_mode"]
         self.vel_limit = p["controller.config.vel_limit"]
         self.vel_gain = p["controller.config.vel_gain"]
         self.vel_tolerance = p["controller.config.vel_limit_tolerance"]
-        self.torque_mode_vel_limit = p["controller.config.enable_torque_mode_vel_limit"]
+        self.torque_mode_vel_limit = p[rig.fw.limiter]
         self.overspeed_error = p["controller.config.enable_overspeed_error"]
         self.torque_lim = p["motor.config.torque_lim"]
         self.current_lim = p["motor.config.current_lim"]
@@ -187,6 +251,11 @@ class Axis:
 
     def set(self, name: str, value: float | int | bool) -> None:
         self.props[name].value = value
+
+    @property
+    def faulted(self) -> bool:
+        """Any error register is non-zero."""
+        return any(self.props[n].value for n in ERROR_REGISTERS)
 
 
 class Device:
@@ -201,8 +270,10 @@ class Device:
         self.torque_log = TorqueLog()
         self.log: deque[tuple[float, str]] = deque(maxlen=10_000)
         self.log_total = 0
-        self.axes = [Axis(r) for _ in range(AXIS_COUNT)]
+        self.fw = r.fw
+        self.axes = [Axis(r, i == r.axis) for i in range(AXIS_COUNT)]
         self.rig_axis = self.axes[r.axis]
+        self.system_error = 0  # the root ``error`` (0.5.2+)
         self.plant = Plant(r.inertia)
         self.user = SimulatedUser(r.user, self.h, r.seed)
         self.engaged = False
@@ -227,7 +298,7 @@ class Device:
         ts = self.t_phys
         h = self.h
         for ax in self.axes:
-            if ax.wd_enable.value and ts - ax.last_feed > ax.wd_timeout.value:
+            if ax.wd_enable.value and ts - ax.last_feed > ax.feed_timeout:
                 if not ax.error.value & AXIS_ERROR_WATCHDOG_TIMER_EXPIRED:  # type: ignore[operator]
                     ax.tripped_at = ts
                     self._trip(ax, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, ts, "watchdog timer expired")
@@ -238,8 +309,7 @@ class Device:
         if closed:
             vl = ax.vel_limit.value
             if ax.overspeed_error.value and abs(v) > ax.vel_tolerance.value * vl:  # type: ignore[operator]
-                ax.ctrl_error.value |= CONTROLLER_ERROR_OVERSPEED  # type: ignore[operator]
-                self._trip(ax, AXIS_ERROR_CONTROLLER_FAILED, ts, "overspeed")
+                self.fault("overspeed", ts)
                 closed = False
             elif ax.control_mode.value == CONTROL_MODE_TORQUE_CONTROL:
                 torque = ax.input_torque.value  # type: ignore[assignment]
@@ -267,11 +337,6 @@ class Device:
             plant.advance(u, h, _NOBODY)  # type: ignore[arg-type]
         self.k += 1
 
-    def _catch_up(self, now: float) -> None:
-        n = int((now - self.t0) / self.h)
-        while self.k < n:
-            self._step()
-
     def note(self, at: float, what: str) -> None:
         self.log.append((at, what))
         self.log_total += 1
@@ -282,6 +347,37 @@ class Device:
         ax.applied = 0.0
         self.note(at, why)
 
+    def fault(self, kind: DeviceFault, at: float) -> None:
+        """A fault of the handle's axis, in the registers as this firmware puts it; the axis
+        drops to idle (torque zero)."""
+        ax, fw = self.rig_axis, self.fw
+        bits = 0  # the axis bit naming the failed part: 0.5.1 and 0.5.5+ only
+        if kind == "motor":
+            ax.motor_error.value |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION  # type: ignore[operator]
+            bits = AXIS_ERROR_MOTOR_FAILED
+        elif kind == "encoder":
+            ax.encoder_error.value |= ENCODER_ERROR_NO_RESPONSE  # type: ignore[operator]
+            bits = AXIS_ERROR_ENCODER_FAILED
+        elif kind == "overspeed":
+            ax.ctrl_error.value |= CONTROLLER_ERROR_OVERSPEED  # type: ignore[operator]
+            bits = AXIS_ERROR_CONTROLLER_FAILED
+            if not fw.axis_failure_bits:  # 0.5.2-0.5.4: the torque goes missing, the motor
+                ax.motor_error.value |= MOTOR_ERROR_UNKNOWN_TORQUE  # type: ignore[operator]
+        elif kind == "estop":
+            self._trip(ax, AXIS_ERROR_ESTOP_REQUESTED, at, "estop requested")
+            return
+        elif kind == "undervoltage":
+            if fw.system_error:  # 0.5.2+: the system's error, the motor's "system level"
+                self.system_error |= SYSTEM_ERROR_DC_BUS_UNDER_VOLTAGE
+                ax.motor_error.value |= MOTOR_ERROR_SYSTEM_LEVEL  # type: ignore[operator]
+                bits = AXIS_ERROR_MOTOR_FAILED
+            else:
+                self._trip(ax, AXIS_ERROR_DC_BUS_UNDER_VOLTAGE, at, "DC bus under voltage")
+                return
+        else:
+            raise ValueError(f"unknown device fault {kind!r}; one of {', '.join(DEVICE_FAULTS)}")
+        self._trip(ax, bits if fw.axis_failure_bits else 0, at, f"{kind} fault")
+
     # -- what the commands do ----------------------------------------------------------------------
     def motor_pos(self) -> float:
         return self.plant.q * self.turns_per_rad + self.rig.initial_turns
@@ -291,8 +387,8 @@ class Device:
 
     def feedback(self, ax: Axis) -> tuple[float, float]:
         """(pos turns, vel turns/s) as the firmware's float32 estimates; 0 on the axis
-        without a motor."""
-        if ax is not self.rig_axis:
+        without a motor, and (from 0.5.2) 0 without a valid estimate (encoder failed)."""
+        if ax is not self.rig_axis or (self.fw.has_sc and ax.encoder_error.value):
             return 0.0, 0.0
         return f32(self.motor_pos()), f32(self.motor_vel())
 
@@ -300,12 +396,14 @@ class Device:
         """``c``: torque control, this setpoint (motor N·m), the watchdog fed."""
         ax.set("controller.config.control_mode", CONTROL_MODE_TORQUE_CONTROL)
         ax.set("controller.input_torque", torque)
-        ax.last_feed = now
+        self.feed(ax, now)
         if ax is self.rig_axis:
             self.torque_log.append(now, torque)
 
     def feed(self, ax: Axis, now: float) -> None:
+        """Feed the watchdog: its timeout is loaded now (a new one applies from the next feed)."""
         ax.last_feed = now
+        ax.feed_timeout = float(ax.wd_timeout.value)
 
     def find(self, path: str) -> tuple[Axis | None, str] | None:
         """The property ``path`` names: (axis, name below it), (None, root name) or None."""
@@ -313,7 +411,7 @@ class Device:
             prefix = f"axis{i}."
             if path.startswith(prefix) and path[len(prefix) :] in ax.props:
                 return ax, path[len(prefix) :]
-        if path in ROOT_PROPS:
+        if path in ROOT_PROPS or (path == "error" and self.fw.system_error):
             return None, path
         return None
 
@@ -327,16 +425,23 @@ class Device:
         return ax.props[name].value
 
     def _root(self, name: str) -> float | int:
+        fw = self.fw.version
         return {
-            "fw_version_major": FIRMWARE[0],
-            "fw_version_minor": FIRMWARE[1],
-            "fw_version_revision": FIRMWARE[2],
+            "fw_version_major": fw[0],
+            "fw_version_minor": fw[1],
+            "fw_version_revision": fw[2],
             "hw_version_major": HARDWARE[0],
             "hw_version_minor": HARDWARE[1],
             "hw_version_variant": HARDWARE[2],
             "vbus_voltage": self.rig.vbus,
             "serial_number": SERIAL_NUMBER,
+            "error": self.system_error,
         }[name]
+
+    def kind(self, ax: Axis | None, name: str) -> Kind:
+        if ax is None:
+            return ROOT_KINDS[name]
+        return ax.props[name].kind
 
     def writable(self, ax: Axis | None, name: str) -> Prop | None:
         """The property if it may be written (root properties and estimates may not)."""
@@ -350,24 +455,30 @@ class Device:
             self._request_state(ax, int(value), now)
 
     def _request_state(self, ax: Axis, state: int, now: float) -> None:
+        ax.error.value = int(ax.error.value) & ~AXIS_ERROR_INVALID_STATE  # cleared per request
         if state == AXIS_STATE_CLOSED_LOOP_CONTROL:
-            if int(ax.get("error")) == 0 and ax is self.rig_axis:
-                ax.set("current_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
-                self.note(now, "closed loop")
+            if ax.faulted:
+                self.note(now, "closed loop refused (errors latched)")
+            elif not (ax.get("motor.is_calibrated") and ax.get("encoder.is_ready")):
+                self._trip(ax, AXIS_ERROR_INVALID_STATE, now, "closed loop refused: not calibrated")
             else:
-                self.note(now, "closed loop refused (axis error or no motor)")
+                ax.set("current_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
+                self.feed(ax, now)  # entering closed loop feeds the watchdog
+                self.note(now, "closed loop")
         elif state == AXIS_STATE_IDLE:
             ax.set("current_state", AXIS_STATE_IDLE)
             self.note(now, "idle")
 
     def clear_errors(self) -> None:
+        """``sc``: every axis' errors and the system's."""
         for ax in self.axes:
-            for name in ("error", "controller.error", "motor.error", "encoder.error"):
+            for name in ERROR_REGISTERS:
                 ax.set(name, 0)
+        self.system_error = 0
 
     def reset_config(self, now: float, *, reboot: bool) -> None:
         """``se`` (erase the configuration) and ``sr`` (reboot): both axes as at power-up."""
-        self.axes = [Axis(self.rig) for _ in range(AXIS_COUNT)]
+        self.axes = [Axis(self.rig, i == self.rig.axis) for i in range(AXIS_COUNT)]
         self.rig_axis = self.axes[self.rig.axis]
         if reboot:
             self.note(now, "reboot")
@@ -386,6 +497,9 @@ class Device:
             current_state=int(ax.get("current_state")),
             error=int(ax.get("error")),
             controller_error=int(ax.get("controller.error")),
+            motor_error=int(ax.get("motor.error")),
+            encoder_error=int(ax.get("encoder.error")),
+            system_error=self.system_error,
             watchdog_enabled=bool(ax.get("config.enable_watchdog")),
             last_feed=ax.last_feed,
             watchdog_tripped_at=ax.tripped_at,
@@ -441,15 +555,15 @@ class _Nobody:
 
 
 _NOBODY = _Nobody()
-ROOT_PROPS = frozenset(
-    {
-        "fw_version_major",
-        "fw_version_minor",
-        "fw_version_revision",
-        "hw_version_major",
-        "hw_version_minor",
-        "hw_version_variant",
-        "vbus_voltage",
-        "serial_number",
-    }
-)
+ROOT_KINDS: dict[str, Kind] = {
+    "fw_version_major": "u8",
+    "fw_version_minor": "u8",
+    "fw_version_revision": "u8",
+    "hw_version_major": "u8",
+    "hw_version_minor": "u8",
+    "hw_version_variant": "u8",
+    "vbus_voltage": "f32",
+    "serial_number": "u64",
+    "error": "flags",  # 0.5.2+
+}
+ROOT_PROPS = frozenset(ROOT_KINDS) - {"error"}

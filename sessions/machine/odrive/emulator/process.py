@@ -11,7 +11,7 @@ import os
 import signal
 from multiprocessing.connection import Connection
 
-from sessions.machine.odrive.emulator.device import EmulatorConfig, EmulatorSnapshot
+from sessions.machine.odrive.emulator.device import DeviceFault, EmulatorConfig, EmulatorSnapshot
 from sessions.machine.odrive.emulator.pty import Injection, OdriveEmulator
 
 
@@ -52,6 +52,9 @@ class EmulatorProcess:
 
     def inject(self, kind: Injection | None, count: int | None = 1) -> None:
         self._call("inject", kind, count)
+
+    def device_fault(self, kind: DeviceFault) -> None:
+        self._call("device_fault", kind)
 
     def torques_since(self, t: float) -> list[tuple[float, float]]:
         return self._call("torques_since", t)  # type: ignore[return-value]

@@ -7,7 +7,9 @@ dropped (:class:`LineReader`, as the firmware's stream parser). Each line goes t
 interpreter (:mod:`.ascii`) after its physics is brought up to the moment the line arrived.
 
 Fault injection (:meth:`OdriveEmulator.inject`) makes the line misbehave the way real ones do:
-garbage, short replies, partial lines, silence, unsolicited lines, bad checksums.
+garbage, short replies, partial lines, silence, unsolicited lines, bad checksums;
+:meth:`OdriveEmulator.device_fault` makes the drive fail (motor, encoder, e-stop, DC bus,
+overspeed), into its error registers as its firmware does.
 """
 
 from __future__ import annotations
@@ -22,7 +24,12 @@ from multiprocessing.connection import Connection
 from typing import Literal
 
 from sessions.machine.odrive.emulator.ascii import AsciiProtocol, frame
-from sessions.machine.odrive.emulator.device import Device, EmulatorConfig, EmulatorSnapshot
+from sessions.machine.odrive.emulator.device import (
+    Device,
+    DeviceFault,
+    EmulatorConfig,
+    EmulatorSnapshot,
+)
 from sessions.machine.odrive.protocol import MAX_LINE
 
 Injection = Literal["garbage", "short", "partial", "silence", "extra", "bad-checksum"]
@@ -31,10 +38,11 @@ LINE_END = (0x0D, 0x0A, 0x21)  # \r \n !
 
 
 class LineReader:
-    """Bytes in, whole lines out; a line longer than :data:`MAX_LINE` is dropped to its end."""
+    """Bytes in, whole lines out; a line longer than :data:`MAX_LINE` is dropped to its end.
+    ``pending``: a partial line already in the buffer (left by a host that died mid-line)."""
 
-    def __init__(self) -> None:
-        self.rx = bytearray()
+    def __init__(self, pending: bytes = b"") -> None:
+        self.rx = bytearray(pending[:MAX_LINE])
         self.read_active = True
 
     def feed(self, data: bytes) -> list[bytes]:
@@ -107,7 +115,7 @@ class OdriveEmulator:
         self.device = Device(rig)
         self.rig = self.device.rig
         self.protocol = AsciiProtocol(self.device)
-        self.lines_in = LineReader()
+        self.lines_in = LineReader(self.rig.partial_line.encode("ascii"))
         self.faults = LineFaults()
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
@@ -231,6 +239,14 @@ class OdriveEmulator:
         reply checksum."""
         with self.lock:
             self.faults.set(kind, count)
+
+    def device_fault(self, kind: DeviceFault) -> None:
+        """The drive fails now: ``motor``, ``encoder``, ``estop``, ``undervoltage``,
+        ``overspeed`` (its registers set as the firmware sets them, the axis idle)."""
+        now = time.monotonic()
+        with self.lock:
+            self.device.catch_up(now)
+            self.device.fault(kind, now)
 
     def snapshot(self) -> EmulatorSnapshot:
         now = time.monotonic()
