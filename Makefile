@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.ergoseek-installed
 
-.PHONY: setup system test lint demo bench clean
+.PHONY: setup system test lint demo bench mutation clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,11 @@ demo: setup
 ## bench: every benchmark, one JSON object each
 bench: setup
 	@for b in benchmarks/[!_]*.py; do echo "== $$b"; $(BIN)/python $$b --json; done
+
+## mutation: mutation score of the safety- and security-critical modules (slow, not in `test`;
+## MODULE=auth for one; docs/testing.md, "Mutation testing")
+mutation: setup
+	nice -n 10 $(BIN)/python -m testing.mutation $(if $(MODULE),--module $(MODULE))
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -15,12 +15,13 @@ import json
 import os
 import resource
 import time
+from typing import get_args
 
-from sessions.config import parse_session_config
+from sessions.config import SeekerConfig, parse_session_config
 from sessions.simulation import run_simulation
 
 CONTROLLERS = ("rise", "measured")
-SEEKERS = ("parabolic", "brent", "perturbation", "fixed")
+SEEKERS: tuple[str, ...] = get_args(SeekerConfig.model_fields["kind"].annotation)  # every kind
 
 
 def main() -> None:

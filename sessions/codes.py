@@ -2,6 +2,7 @@
 
 - **Session status**: what the store keeps, the API filters on and the worker ends with.
 - **Protocol phases**: the kinds a session's protocol phases have (sessions.protocol).
+- **Bounds**: where a search ended against the trainer's bracket (``at_bound``).
 - **Seeker phases**: ``Seeker.phase``, and the ring's ``phase`` column (with the worker's
   :data:`STOPPING` for the stop ramp, which is not a seeker phase).
 - **Flags**: the engine's limit bits (:class:`sessions.limits.Limits`) and the worker's own,
@@ -26,13 +27,15 @@ END_STATUSES: tuple[EndStatus, ...] = get_args(EndStatus)
 # -- protocol phases ----------------------------------------------------------------------------
 PhaseKindName = Literal["warmup", "seek", "train", "profile", "cooldown", "stop"]
 PHASE_KINDS: tuple[PhaseKindName, ...] = get_args(PhaseKindName)  # "stop": the runner's own
-AtBound = Literal["lower", "upper"]  # a search whose best point is at this edge of the bracket
-AT_BOUNDS: tuple[AtBound, ...] = get_args(AtBound)
 
 # -- seeker phases -----------------------------------------------------------------------------
 DELAY, SETTLING, MEASURING, DONE = 0, 1, 2, 3
 PHASES: tuple[str, ...] = ("delay", "settling", "measuring", "done")  # index = code
 STOPPING = -1  # the ring's phase column during the worker's stop ramp
+
+# -- the bound a search ended at (the best point there, the power still rising outward) ------
+Bound = Literal["lower", "upper"]
+BOUNDS: tuple[Bound, ...] = get_args(Bound)
 
 
 def phase_name(code: float) -> str | None:

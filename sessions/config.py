@@ -42,25 +42,122 @@ class MachineConfig(StrictModel):
     )
 
 
-class UserConfig(StrictModel):
-    """A simulated person: torque-velocity law plus real-world traits."""
+# Physical bounds of a simulated person (issue 13): every field is bounded by what a human can
+# do, so that no profile can feed the loop absurd or non-finite numbers. The strongest measured
+# human joint torques (elite knee extension, sprint cyclists' crank torque) stay below about
+# 400 N·m; the fastest limb velocities at a handle or crank (sprint cadence ≈ 250 rpm ≈ 26 rad/s)
+# below 50 rad/s. The machine's own torque limit (machine.max_torque) is not a bound on the
+# person: a user stronger than the motor is real, and the machine's limits handle them.
+PERSON_MAX_TORQUE = 500.0  # N·m
+PERSON_MAX_VELOCITY = 50.0  # rad/s
+LONGEST_TIME = 1e6  # s, about 11.6 days: longer time constants mean "none" in practice
 
-    kind: Literal["hill", "linear"] = "hill"
-    tau0: Positive = Field(3.0, description="isometric torque, N·m")
-    wmax: Positive = Field(10.0, description="velocity at which torque reaches zero, rad/s")
-    curvature: Positive = Field(0.25, description="Hill's a/F0 (hill only)")
+
+def _none_or_at_least_a_second(v: float) -> float:
+    if 0.0 < v < 1.0:
+        raise ValueError(f"must be 0 (none) or at least 1 s, got {v}")
+    return v
+
+
+class UserConfig(StrictModel):
+    """A simulated person: torque-velocity law plus real-world traits, within human bounds.
+
+    The torque at time t is τ(w, t) = τ0(t)·g(w / s(t))·(1 + n(t))·(1 + r sin q), clamped to
+    [0, τmax]: τ0(t) falls with (torque) fatigue, s(t) shrinks the velocity axis (velocity
+    fatigue), n is the noise and r the stroke ripple. ``kind = "table"`` gives τ(w) as measured
+    points instead of a law (tau0, wmax and curvature are then not used)."""
+
+    kind: Literal["hill", "linear", "table"] = "hill"
+    tau0: Positive = Field(
+        3.0,
+        le=PERSON_MAX_TORQUE,
+        description="isometric torque, N·m (≤ 500: beyond any person's joint torque)",
+    )
+    wmax: Positive = Field(
+        10.0,
+        ge=0.1,
+        le=PERSON_MAX_VELOCITY,
+        description="velocity at which torque reaches zero, rad/s (0.1-50: a person's range)",
+    )
+    curvature: Positive = Field(
+        0.25,
+        ge=0.02,
+        le=10.0,
+        description="Hill's a/F0 (hill only); muscle measures 0.1-0.6, 10 is nearly linear",
+    )
+    points: tuple[tuple[float, float], ...] | None = Field(
+        None,
+        description="table only: [[w, τ], …] in rad/s and N·m, w increasing from ≥ 0, τ ≥ 0; "
+        "interpolated by PCHIP (monotone), τ = 0 past the last point",
+    )
     noise: NonNegative = Field(0.0, le=0.5, description="relative std of the torque fluctuation")
-    noise_bandwidth: Positive = Field(5.0, le=200.0, description="noise corner frequency, Hz")
+    noise_bandwidth: Positive = Field(
+        5.0, ge=0.01, le=200.0, description="noise corner frequency, Hz"
+    )
     ripple: NonNegative = Field(0.0, lt=1.0, description="stroke-angle ripple r: τ·(1 + r sin q)")
-    fatigue_tau: NonNegative = Field(0.0, description="τ0(t) = τ0·exp(-t/fatigue_tau), s; 0 = none")
+    fatigue_tau: NonNegative = Field(
+        0.0,
+        le=LONGEST_TIME,
+        description="τ0(t) = τ0·exp(-t/fatigue_tau), s; 0 = none, else ≥ 1 s",
+    )
     fatigue_model: Literal["exponential", "three-compartment"] = Field(
         "exponential", description="three-compartment: Xia & Frey Law (2008), ignores fatigue_tau"
     )
     fatigue_effort: Positive = Field(
         0.5, le=1.0, description="three-compartment target load, fraction of capacity"
     )
-    fatigue_f: Positive = Field(0.01, description="three-compartment fatigue rate F, 1/s")
-    fatigue_r: Positive = Field(0.002, description="three-compartment recovery rate R, 1/s")
+    fatigue_f: Positive = Field(
+        0.01, le=1.0, description="three-compartment fatigue rate F, 1/s (muscles: 0.001-0.1)"
+    )
+    fatigue_r: Positive = Field(
+        0.002, le=1.0, description="three-compartment recovery rate R, 1/s (muscles: 0.0005-0.05)"
+    )
+    velocity_fatigue_tau: NonNegative = Field(
+        0.0,
+        le=LONGEST_TIME,
+        description="T of the velocity axis' shrinking s(t) = f + (1 - f)·exp(-t/T), s; "
+        "0 = none, else ≥ 1 s. w*(t) = s(t)·w*(0)",
+    )
+    velocity_fatigue_floor: Positive = Field(
+        0.8, le=1.0, description="f: what s(t) shrinks to, 0 < f ≤ 1"
+    )
+
+    @field_validator("fatigue_tau", "velocity_fatigue_tau")
+    @classmethod
+    def _seconds(cls, v: float) -> float:
+        return _none_or_at_least_a_second(v)
+
+    @field_validator("points")
+    @classmethod
+    def _table(
+        cls, v: tuple[tuple[float, float], ...] | None
+    ) -> tuple[tuple[float, float], ...] | None:
+        if v is None:
+            return v
+        if len(v) < 3:
+            raise ValueError(f"needs at least 3 points [w, τ], got {len(v)}")
+        if len(v) > 1000:
+            raise ValueError(f"at most 1000 points, got {len(v)}")
+        for i, (w, tau) in enumerate(v):
+            if not (math.isfinite(w) and math.isfinite(tau)):
+                raise ValueError(f"point {i}: must be finite numbers, got {[w, tau]}")
+            if not 0.0 <= w <= PERSON_MAX_VELOCITY:
+                raise ValueError(f"point {i}: w = {w} must be within [0, {PERSON_MAX_VELOCITY}]")
+            if not 0.0 <= tau <= PERSON_MAX_TORQUE:
+                raise ValueError(f"point {i}: τ = {tau} must be within [0, {PERSON_MAX_TORQUE}]")
+            if i and not w > v[i - 1][0]:
+                raise ValueError(f"point {i}: w must increase, got {v[i - 1][0]} then {w}")
+        if max(tau for _, tau in v[1:]) <= 0.0:
+            raise ValueError("τ must be positive somewhere past the first point")
+        return v
+
+    @model_validator(mode="after")
+    def _kind_and_points(self) -> UserConfig:
+        if self.kind == "table" and self.points is None:
+            raise ValueError("points: required when kind = 'table'")
+        if self.kind != "table" and self.points is not None:
+            raise ValueError(f"points: only with kind = 'table' (kind is {self.kind!r})")
+        return self
 
 
 class ControllerConfig(StrictModel):
@@ -85,18 +182,30 @@ class FilterConfig(StrictModel):
 
 
 class SeekerConfig(StrictModel):
-    """Desired-trajectory generator: which extremum seeker and its parameters."""
+    """Desired-trajectory generator: which extremum seeker and its parameters.
 
-    kind: Literal["parabolic", "brent", "perturbation", "fixed"] = "brent"
+    Every seeker keeps its target within the bracket [γ1, γ3], the trainer's bounds for this
+    person (``expand`` lets it move them outward in bounded steps, never past ``expand_limit``).
+    """
+
+    kind: Literal["sweep", "brent", "parabolic", "perturbation", "fixed"] = "sweep"
     bracket: tuple[Positive, Positive, Positive] = Field(
-        (1.0, 3.5, 6.0), description="γ1 < γ2 < γ3: lower bound, best guess, upper bound, rad/s"
+        (1.0, 3.5, 6.0),
+        description="γ1 < γ2 < γ3: lower bound, best guess, upper bound, rad/s; the bounds are "
+        "hard limits on every target",
     )
     rho: Positive = Field(1.0, le=5.0, description="ρ of the modified power p = τ·w^ρ (4)")
     objective: Literal["power", "surrogate"] = Field(
-        "power", description="power: τ (or τ̂)·wd^ρ; surrogate: eq. (31), the paper's Exp. 1"
+        "power", description="power: τ (or τ̂)·w^ρ; surrogate: eq. (31), the paper's Exp. 1"
+    )
+    measure: Literal["velocity", "desired"] = Field(
+        "velocity",
+        description="velocity: p = τ̂·w^ρ at the measured velocity, each power placed at the "
+        "mean of w (unbiased by the tracking error); desired: p = τ̂·wd^ρ at the mean of wd, "
+        "the paper's (13)",
     )
     filter: FilterConfig = FilterConfig()
-    start_delay: NonNegative = Field(1.5, description="no measurement before this time, s")
+    start_delay: NonNegative = Field(1.5, le=60.0, description="no measurement before this time, s")
     e1: Positive = Field(0.1, description="ē1: measure only when |e| ≤ ē1, rad/s")
     e2: Positive = Field(0.05, description="ē2: measure only when |wd - γ| ≤ ē2, rad/s")
     window: Positive = Field(0.5, description="shortest averaging window per candidate, s")
@@ -107,12 +216,46 @@ class SeekerConfig(StrictModel):
     threshold: Positive = Field(0.1, description="stop when the bracket is narrower, rad/s")
     min_step: Positive = Field(0.05, description="no two candidates closer than this, rad/s")
     step: Positive | None = Field(
-        None, description="brent: first probe's distance from γ2 (default: a tenth of the bracket)"
+        None,
+        description="brent: first probe's distance from γ2 (default: a twentieth of the bracket)",
     )
     noise_k: NonNegative = Field(
         2.0, description="brent: points whose power differs by < k·σ are not told apart"
     )
     max_evaluations: int = Field(30, ge=3, le=1000)
+    # the bracket as a bound
+    expand: bool = Field(
+        False, description="let the search move a bound outward when the optimum lies beyond it"
+    )
+    expand_limit: tuple[Positive, Positive] | None = Field(
+        None,
+        description="with expand: the lowest and highest velocity the bounds may move to, "
+        "rad/s (never past 95 % of machine.max_velocity either)",
+    )
+    # sweep: learning p(w) from every sample
+    sweep_rate: Positive = Field(
+        0.15,
+        le=2.0,
+        description="sweep: speed of the candidate near the top, as a fraction of the velocity "
+        "per second (faster where the power is clearly far from its maximum)",
+    )
+    power_tol: Positive = Field(
+        0.005,
+        le=0.1,
+        description="sweep: converged once the optimum is known to within this fraction of "
+        "the power (at two standard errors)",
+    )
+    # the track phase (numerical seekers, after convergence)
+    track: bool = Field(
+        True, description="after converging, follow the optimum if it moves (track phase)"
+    )
+    dither: NonNegative = Field(
+        0.05, le=0.25, description="track: dither amplitude on the candidate, fraction of θ"
+    )
+    dither_period: Positive = Field(6.0, ge=1.0, le=120.0, description="track: dither period, s")
+    track_memory: Positive = Field(
+        20.0, ge=2.0, le=3600.0, description="track: time constant of the samples' weights, s"
+    )
     # perturbation, eq. (14)
     amplitude: Positive = Field(0.2, description="ae: dither amplitude, rad/s")
     omega: Positive = Field(1.5, description="ω: dither frequency, rad/s")
@@ -135,6 +278,21 @@ class SeekerConfig(StrictModel):
     def _windows(self) -> SeekerConfig:
         if self.max_window < self.window:
             raise ValueError("max_window: must be at least window")
+        if self.expand_limit is not None:
+            lo, hi = self.expand_limit
+            if not (lo <= self.bracket[0] and hi >= self.bracket[2]):
+                raise ValueError(
+                    f"expand_limit: must contain the bracket [{self.bracket[0]}, "
+                    f"{self.bracket[2]}], got {[lo, hi]}"
+                )
+        if self.setpoint is not None and not self.bracket[0] <= self.setpoint <= self.bracket[2]:
+            raise ValueError(
+                f"setpoint: must lie within the bracket [{self.bracket[0]}, {self.bracket[2]}]"
+            )
+        if self.expand and self.expand_limit is None:
+            raise ValueError(
+                "expand_limit: required with expand = true (how far the bounds may move)"
+            )
         return self
 
 

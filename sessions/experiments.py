@@ -8,8 +8,10 @@ seeker of Appendix A.
 - Exp. 2: bracket 1, 3.5, 6; the seeker is fed τ̂·wd from the observer (28); the person is a
   Hill user (τ0 = 3 N·m, wmax = 10 rad/s, a = 0.25: w* ≈ 3.09 rad/s). Gains ks = 2,
   β1+β2 = 0.1, αr = 0.1.
-``paper=True`` uses the paper's gains; otherwise ergoseek's default controller gains and seeker
-thresholds, with the experiment's bracket, filter and delay.
+``paper=True`` uses the paper's gains and its measurement (13), p = τ̂·wd^ρ at the mean of wd,
+and stops when the search does (no track phase), as the paper did; otherwise ergoseek's default
+controller gains, measurement and seeker settings, with the experiment's bracket, filter and
+delay.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ def experiment(
                 "objective": "surrogate" if name == "exp1" else "power",
                 "filter": {"order": 4, "pole": 3.0},
                 "start_delay": 1.5,
+                **({"measure": "desired", "track": False} if paper else {}),
             },
         }
     )

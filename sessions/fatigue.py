@@ -1,7 +1,11 @@
-"""Fatigue of a simulated user: how the isometric torque τ0 falls during a session.
+"""Fatigue of a simulated user: how strength and speed fall during a session.
 
-Both models give a factor f(t) ∈ (0, 1] with τ0(t) = τ0·f(t). Fatigue scales the whole
-torque-velocity curve, so it lowers p* but leaves w* where it was.
+Torque fatigue: both models give a factor f(t) ∈ (0, 1] with τ0(t) = τ0·f(t). It scales the
+whole torque-velocity curve, so it lowers p* but leaves w* where it was.
+
+Velocity fatigue (:class:`VelocityFatigue`): real fatigue also lowers the maximal shortening
+velocity, so the velocity axis shrinks by s(t) = f + (1 − f)·exp(−t/T) and
+τ(w, t) = τ0(t)·g(w / s(t)): the optimum moves, w*(t) = s(t)·w*(0).
 """
 
 from __future__ import annotations
@@ -104,6 +108,31 @@ class ThreeCompartmentFatigue:
         while probe.t < t - 1e-12:
             probe.advance(min(step, t - probe.t))
         return probe.factor
+
+
+class VelocityFatigue:
+    """s(t) = f + (1 - f)·exp(-t/T): the factor by which the velocity axis has shrunk."""
+
+    time_varying = True
+
+    def __init__(self, time_constant: float, floor: float) -> None:
+        self.time_constant = time_constant
+        self.floor = floor
+        self.t = 0.0
+        self.factor = 1.0
+        self._excess = 1.0 - floor  # s(t) - f, decays exponentially
+        self._dt = 0.0
+        self._decay = 1.0
+
+    def advance(self, dt: float) -> None:
+        if dt != self._dt:
+            self._dt, self._decay = dt, math.exp(-dt / self.time_constant)
+        self.t += dt
+        self._excess *= self._decay
+        self.factor = self.floor + self._excess
+
+    def factor_at(self, t: float) -> float:
+        return self.floor + (1.0 - self.floor) * math.exp(-t / self.time_constant)
 
 
 Fatigue = NoFatigue | ExponentialFatigue | ThreeCompartmentFatigue

@@ -8,6 +8,16 @@ seeker: a session without a protocol is one seek phase, whose reference is the s
 The loop knows nothing of clocks, processes or the web: time is the step count × dt.
 Each step leaves its telemetry row in ``row`` (channels of :mod:`sessions.telemetry`), plain
 floats for whoever records them (simulation arrays, the worker's shared-memory ring).
+
+The power the seeker is told: p = τ̂·w^ρ at the measured velocity (``measure = "velocity"``,
+the default), or the paper's (13) p = τ̂·wd^ρ (``measure = "desired"``); the surrogate (31) is
+evaluated at the same abscissa. Near the top p is flat, so the few per cent by which w lags wd
+while a candidate settles are worth more than p varies there (docs/engine.md).
+
+Non-finite values: a NaN or infinite torque command is never returned (the step returns 0 and
+sets ``fault``), and a non-finite power or error never reaches a target (the seeker holds, see
+:mod:`sessions.seekers.base`); ``fault`` names the first such value, so the worker can zero
+the torque and end the session with that reason.
 """
 
 from __future__ import annotations
@@ -23,15 +33,19 @@ from sessions.protocol.runner import ProtocolRunner
 from sessions.seekers import Evaluation, make_seeker
 from sessions.stability import deadbeat_gain
 from sessions.telemetry import INDEX, WIDTH
+from sessions.truth import RegretMeter, Truth
 
 
 class Loop:
     __slots__ = (
         "cfg", "dt", "k", "controller", "seeker", "reference", "limits", "passivity", "rho",
-        "surrogate", "row", "flags", "evaluation", "peak_power", "power_sum", "stage", "_calls",
+        "surrogate", "at_w", "row", "flags", "evaluation", "peak_power", "power_sum", "stage",
+        "target_min", "target_max", "fault", "regret_meter", "_calls",
     )  # fmt: skip
 
-    def __init__(self, cfg: SessionConfig, *, as_printed: bool = False) -> None:
+    def __init__(
+        self, cfg: SessionConfig, *, as_printed: bool = False, truth: Truth | None = None
+    ) -> None:
         m = cfg.machine
         self.cfg = cfg
         self.dt = cfg.dt
@@ -43,17 +57,28 @@ class Loop:
         self.passivity = PassivityMonitor(m.passivity_c2)
         self.rho = cfg.seeker.rho
         self.surrogate = cfg.seeker.objective == "surrogate"
+        self.at_w = cfg.seeker.measure == "velocity"
         self.row: tuple[float, ...] = (0.0,) * WIDTH
         self.flags = 0
         self.evaluation: Evaluation | None = None
         self.peak_power = 0.0
         self.power_sum = 0.0
         self.stage = 0  # the protocol phase whose reference the last step used
+        self.target_min = math.inf
+        self.target_max = -math.inf
+        self.fault: str | None = None
+        self.regret_meter: RegretMeter | None = None
+        if truth is not None:
+            self.attach_truth(truth)
         # bound once: step() runs every period
         self._calls = (
             self.controller.command, self.limits.apply, self.controller.commit,
             self.passivity.add, self.reference.tell,
         )  # fmt: skip
+
+    def attach_truth(self, truth: Truth) -> None:
+        """The simulated person's truth (simulation, sim machine): enables ``regret``."""
+        self.regret_meter = RegretMeter(truth, self.rho, self.cfg.seeker.start_delay, self.dt)
 
     def begin(self, q0: float, w0: float) -> None:
         """Start at the machine's current state: the reference starts at w0, u(t0) = 0 for RISE."""
@@ -82,14 +107,26 @@ class Loop:
         if held is not None:  # the observer (28) and the record see what was applied
             u = u_cmd = held
         tau = commit(e, ad, tau_measured, u, u_cmd, dt)
-        p = surrogate_power(wd) if self.surrogate else modified_power(tau, wd, self.rho)
-        work = add_work(tau, w, dt)
+        x = w if self.at_w else wd
+        p = surrogate_power(x) if self.surrogate else modified_power(tau, x, self.rho)
         pm = tau * w
-        self.power_sum += pm
-        if pm > self.peak_power:
-            self.peak_power = pm
+        if u - u == 0.0 and p - p == 0.0 and pm - pm == 0.0:  # all finite (nan - nan is nan)
+            work = add_work(tau, w, dt)
+            self.power_sum += pm
+            if pm > self.peak_power:
+                self.peak_power = pm
+        else:
+            u = self._nonfinite(u, tau, p, w)
+            work = self.passivity.work
         self.evaluation = tell(t, q, p, e)
-        self.row = (t, q, w, wd, ad, u, tau, p, work, ref.target)
+        target = ref.target
+        if target < self.target_min:
+            self.target_min = target
+        if target > self.target_max:
+            self.target_max = target
+        if self.regret_meter is not None:
+            self.regret_meter.add(t, w)
+        self.row = (t, q, w, wd, ad, u, tau, p, work, target)
         self.flags = self.limits.flags
         self.k += 1
         return u
@@ -103,6 +140,20 @@ class Loop:
         """The protocol is over and the handle at rest: the torque may be released."""
         return self.reference.finished
 
+    def _nonfinite(self, u: float, tau: float, p: float, w: float) -> float:
+        """Name the first non-finite value; never return a non-finite torque."""
+        if self.fault is None:
+            if not math.isfinite(w):
+                what = f"velocity w = {w}"
+            elif not math.isfinite(tau):
+                what = f"torque estimate τ = {tau}"
+            elif not math.isfinite(u):
+                what = f"torque command u = {u}"
+            else:
+                what = f"power p = {p}"
+            self.fault = f"non-finite {what}"
+        return u if math.isfinite(u) else 0.0
+
     def value(self, channel: str) -> float:
         """The last step's value of one telemetry channel."""
         return self.row[INDEX[channel]]
@@ -115,3 +166,8 @@ class Loop:
     def mean_power(self) -> float:
         """Mean mechanical power τ·w (τ̂·w under RISE) so far, W."""
         return self.power_sum / self.k if self.k else 0.0
+
+    @property
+    def regret(self) -> float | None:
+        """Regret against the person's truth so far; None without one (real hardware)."""
+        return self.regret_meter.regret if self.regret_meter is not None else None

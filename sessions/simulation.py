@@ -20,6 +20,7 @@ from sessions.plant import Plant
 from sessions.protocol.cues import CuedPerson
 from sessions.protocol.stage import Stage
 from sessions.seekers import Evaluation, SeekerProgress
+from sessions.summary import SessionSummary, summarize
 from sessions.telemetry import INDEX, WIDTH, csv_header
 
 
@@ -35,6 +36,9 @@ class SimulationResult:
     wall_seconds: float
     true_work: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     stages: tuple[Stage, ...] = ()  # the protocol runner's segments, as they began
+    summary: SessionSummary | None = None
+    min_user_torque: float = 0.0  # extremes of the user's true torque over every period
+    max_user_torque: float = 0.0
 
     def column(self, name: str) -> np.ndarray:
         return self.telemetry[:, INDEX[name]]
@@ -52,13 +56,14 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
     n = round(cfg.duration * cfg.rate)
     user = SimulatedUser(cfg.user, dt, cfg.seed)
     plant = Plant(cfg.machine.inertia)
-    loop = Loop(cfg, as_printed=as_printed)
+    loop = Loop(cfg, as_printed=as_printed, truth=user)
     loop.begin(plant.q, plant.w)
     seeker, ref = loop.seeker, loop.reference
     person = user if cfg.protocol is None else CuedPerson(user, ref, dt)
     buf = array("d")
     extend = buf.extend
     true_work = array("d")
+    torques = array("d")
     step, sample, advance, user_advance = (
         loop.step,
         plant.sample_torque,
@@ -79,6 +84,7 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
             advance(u, dt, person)
             user_advance(dt)
             true_work.append(plant.user_work)
+            torques.append(tau)
             if ref.finished:
                 break
     finally:
@@ -86,6 +92,7 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
         if gc_was_enabled:
             gc.enable()
     tw = np.frombuffer(true_work, dtype=float)
+    taus = np.frombuffer(torques, dtype=float)
     if len(tw):
         true_min = min(0.0, float(tw.min()))
     return SimulationResult(
@@ -99,6 +106,9 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
         wall_seconds=wall,
         true_work=tw,
         stages=tuple(ref.log),
+        summary=summarize(loop),
+        min_user_torque=float(taus.min()) if len(taus) else 0.0,
+        max_user_torque=float(taus.max()) if len(taus) else 0.0,
     )
 
 
@@ -111,7 +121,13 @@ def _settle_time(t: np.ndarray, ok: np.ndarray) -> float | None:
 
 
 def score(result: SimulationResult) -> dict[str, Any]:
-    """The figures ``ergoseek simulate --json`` prints, judged against the user's truth."""
+    """The figures ``ergoseek simulate --json`` prints, judged against the user's truth.
+
+    ``w_star``, ``p_star`` and ``power_ratio`` = p(wd_final)/p* are at the end; ``t_99`` is the
+    time after which p(wd(t), t)/p*(t) ≥ 0.99 holds to the end (the optimum may move: velocity
+    fatigue); ``t_1pct`` the time after which |wd − w*(t)| ≤ 1 % of w*(t). ``regret``,
+    ``at_bound``, ``target_min``/``target_max``, ``t_converged``/``wd_converged`` and the
+    optimum at the end are the session summary's (:mod:`sessions.summary`)."""
     cfg, user = result.cfg, result.user
     rho = cfg.seeker.rho
     t = result.column("t")
@@ -120,21 +136,35 @@ def score(result: SimulationResult) -> dict[str, Any]:
     end = cfg.duration
     w_star, p_star = user.optimum(rho, end)
     wd_final = float(wd[-1]) if len(wd) else math.nan
-    # fatigue scales p(w) and p* alike, so the ratio is the shape's ratio at every instant
-    shape = np.vectorize(user.shape, otypes=[float])
-    norm = user.shape(w_star) * w_star**rho
-    ratio = shape(wd) * np.where(wd > 0, np.abs(wd) ** rho, 0.0) / norm
+    ratio = user.power_ratio(wd, t, rho)
+    if user.speed.time_varying:
+        w_stars = np.array([user.w_star(rho, float(x)) for x in t[::10]])
+        w_star_t = np.repeat(w_stars, 10)[: len(t)]
+    else:
+        w_star_t = np.full(len(t), user.w_star(rho))
     e = w - wd
     after5 = t >= 5.0
+    sm = result.summary
+    summary = sm.model_dump() if sm is not None else {}
     return {
         "w_star": w_star,
         "p_star": p_star,
         "wd_final": wd_final,
         "power_ratio": user.true_power(wd_final, rho, end) / p_star,
-        "t_1pct": _settle_time(t, np.abs(wd - w_star) <= 0.01 * w_star),
+        "t_1pct": _settle_time(t, np.abs(wd - w_star_t) <= 0.01 * w_star_t),
         "t_99": _settle_time(t, ratio >= 0.99),
+        "regret": summary.get("regret"),
+        "at_bound": summary.get("at_bound"),
+        "target_min": summary.get("target_min"),
+        "target_max": summary.get("target_max"),
+        "t_converged": summary.get("t_converged"),
+        "wd_converged": summary.get("wd_converged"),
+        "p_converged": summary.get("p_converged"),
+        "optimum_w": summary.get("optimum_w"),
+        "optimum_p": summary.get("optimum_p"),
+        "optimum_t": summary.get("optimum_t"),
         "evaluations": [[ev.t, ev.candidate, ev.power] for ev in result.evaluations],
-        "converged": result.progress.done,
+        "converged": summary.get("converged", result.progress.done),
         "stop_reason": result.progress.reason,
         "passivity_min": result.passivity_min,
         "true_passivity_min": result.true_passivity_min,

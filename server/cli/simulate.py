@@ -80,6 +80,13 @@ def run(args: argparse.Namespace) -> int:
         + (f"{t1:.1f} s" if t1 is not None else "never")
         + f"   evaluations = {len(figures['evaluations'])}"
     )
+    regret = figures["regret"]
+    print(
+        "           regret = "
+        + (f"{100 * regret:.2f} %" if regret is not None else "-")
+        + f"   targets {figures['target_min']:.3f}..{figures['target_max']:.3f} rad/s"
+        + (f"   AT THE {figures['at_bound'].upper()} BOUND" if figures["at_bound"] else "")
+    )
     print(
         f"           W_min = {figures['passivity_min']:.3f} J   "
         f"e_rms = {figures['e_rms']:.4f} rad/s   max|u| = {figures['max_abs_u']:.2f} N·m"

@@ -257,11 +257,13 @@ class Pump:
         if record is not None and status == "completed" and record.converged and record.optimum_w:
             with contextlib.suppress(ConflictError):
                 await asyncio.to_thread(self.store.setpoints.from_session, session.db_id)
-        session.ended.set()
-        await self._final_phases(session)
-        self.hub.publish_event(
-            {"type": "session_finished", "session_id": session.db_id, "status": status}
-        )
+        try:
+            await self._final_phases(session)
+            self.hub.publish_event(
+                {"type": "session_finished", "session_id": session.db_id, "status": status}
+            )
+        finally:  # (a shutdown waits for this: the live clients have seen the end by then)
+            session.ended.set()
 
     async def _final_phases(self, session: LiveSession) -> None:
         """The session has ended: its open phase ends with its data; every phase summarized."""

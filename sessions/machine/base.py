@@ -29,6 +29,7 @@ from typing import Any, ClassVar
 
 from sessions.config import SessionConfig
 from sessions.machine.spec import check_controller
+from sessions.truth import Truth
 
 
 class MachineState(enum.IntEnum):
@@ -130,6 +131,11 @@ class Machine:
             self._fail(f"write failed: {exc}")
             raise MachineError(self.fault_reason) from exc
         self.last_command = u
+
+    def truth(self) -> Truth | None:
+        """The person's true power curve where the backend has one (the simulator's simulated
+        person: the session's summary then scores its ``regret``); None on real hardware."""
+        return None
 
     def zero(self) -> None:
         """Zero torque now, best effort, whatever the state. Never raises."""

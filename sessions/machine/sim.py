@@ -24,6 +24,7 @@ from sessions.machine.spec import SimFault
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
 from sessions.protocol.cues import CuedPerson
+from sessions.truth import Truth
 
 HUGE_TORQUE = 1e308  # N·m: finite, and every product the loop forms with it overflows
 
@@ -52,6 +53,9 @@ class SimMachine(Machine):
         self.plant = Plant(cfg.machine.inertia)
         self.steps = 0
         self.fault_step = -1 if self.fault is None else round(self.fault.at / cfg.dt)
+
+    def truth(self) -> Truth | None:
+        return self.user
 
     def _read(self) -> tuple[float, float, float]:
         plant = self.plant

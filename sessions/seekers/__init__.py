@@ -8,6 +8,7 @@ from sessions.seekers.brent import BrentSeeker
 from sessions.seekers.fixed import FixedSeeker
 from sessions.seekers.parabolic import ParabolicAsPrintedSeeker, ParabolicSeeker
 from sessions.seekers.perturbation import PerturbationSeeker
+from sessions.seekers.sweep import SweepSeeker
 
 
 def make_seeker(
@@ -19,6 +20,8 @@ def make_seeker(
         return cls(cfg, dt, max_velocity)
     if cfg.kind == "brent":
         return BrentSeeker(cfg, dt, max_velocity)
+    if cfg.kind == "sweep":
+        return SweepSeeker(cfg, dt, max_velocity)
     if cfg.kind == "perturbation":
         return PerturbationSeeker(cfg, dt, max_velocity)
     return FixedSeeker(cfg, dt, max_velocity)

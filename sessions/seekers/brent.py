@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 from sessions.seekers.base import Evaluation, FilteredSeeker, Plan
-from sessions.seekers.fit import final_estimate, rms_stderr
+from sessions.seekers.fit import final_estimate, rms_stderr, top_curvature
 from sessions.seekers.parabolic import curvature, parabola_vertex
 
 GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))  # 0.381966…, the golden-section fraction
@@ -80,11 +80,13 @@ class BrentSeeker(FilteredSeeker):
         return min(step, max(h, (v - anchor) * direction))
 
     def _final(self, best: float) -> float:
-        return final_estimate(self.evaluations, self.cfg.bracket[0], self.cfg.bracket[2], best)
+        return final_estimate(self.evaluations, self.lo, self.hi, best)
 
-    def plan(self) -> Plan:
+    def curvature_hint(self) -> float | None:
+        return top_curvature(self.evaluations)
+
+    def plan(self, lo: float, guess: float, hi: float) -> Plan:
         cfg = self.cfg
-        lo, guess, hi = cfg.bracket
         budget = cfg.max_evaluations
         self.noise_tol = 0.0
         h = cfg.step if cfg.step is not None else 0.05 * (hi - lo)

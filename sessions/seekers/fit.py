@@ -23,6 +23,12 @@ from sessions.seekers.base import Evaluation
 
 def quadratic_peak(evs: Sequence[Evaluation], lo: float, hi: float) -> float | None:
     """The fitted peak within [lo, hi], or None when the measurements do not show one."""
+    found = _quadratic(evs, lo, hi)
+    return None if found is None else found[0]
+
+
+def _quadratic(evs: Sequence[Evaluation], lo: float, hi: float) -> tuple[float, float] | None:
+    """(peak, d²p/dw²) of the fit, or None."""
     pts = [ev for ev in evs if lo <= ev.candidate <= hi and math.isfinite(ev.power)]
     if len({ev.candidate for ev in pts}) < 3:
         return None
@@ -53,7 +59,19 @@ def quadratic_peak(evs: Sequence[Evaluation], lo: float, hi: float) -> float | N
     if not c < -2.0 * c_err:
         return None
     peak = float(g.mean() - coef[1] / (2.0 * c) * gs)
-    return min(max(peak, float(g.min())), float(g.max()))  # never extrapolate
+    return min(max(peak, float(g.min())), float(g.max())), float(2.0 * c / (gs * gs))
+
+
+def top_curvature(evs: Sequence[Evaluation]) -> float | None:
+    """d²p/dw² of the fit through the measurements near the top, when it shows a maximum."""
+    found = _quadratic(_top(evs), -math.inf, math.inf) if evs else None
+    return None if found is None else found[1]
+
+
+def _top(evs: Sequence[Evaluation]) -> list[Evaluation]:
+    top = max(ev.power for ev in evs)
+    floor = top - max(0.05 * abs(top), 3.0 * rms_stderr(evs))
+    return [ev for ev in evs if ev.power >= floor]
 
 
 def rms_stderr(evs: Sequence[Evaluation]) -> float:
@@ -70,7 +88,5 @@ def final_estimate(evs: Sequence[Evaluation], lo: float, hi: float, fallback: fl
     out one lucky measurement."""
     if not evs:
         return fallback
-    top = max(ev.power for ev in evs)
-    floor = top - max(0.05 * abs(top), 3.0 * rms_stderr(evs))
-    peak = quadratic_peak([ev for ev in evs if ev.power >= floor], lo, hi)
+    peak = quadratic_peak(_top(evs), lo, hi)
     return fallback if peak is None else peak

@@ -15,13 +15,16 @@ class FixedSeeker(FilteredSeeker):
         self.reason = "fixed setpoint"
 
     def setpoint(self) -> float:
-        return self.cfg.setpoint if self.cfg.setpoint is not None else self.cfg.bracket[1]
+        sp = self.cfg.setpoint if self.cfg.setpoint is not None else self.cfg.bracket[1]
+        return self.clamp(sp)
 
-    def plan(self) -> Plan:
+    def plan(self, lo: float, guess: float, hi: float) -> Plan:
         sp = self.setpoint()
+        self.optimum = sp
         self.bracket = (sp, sp)
         while True:
-            yield sp
+            ev = yield sp
+            self.optimum_power = ev.power
 
     def fraction(self) -> float:
         return 1.0

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 
 from sessions.seekers.base import Evaluation, FilteredSeeker, Plan
-from sessions.seekers.fit import final_estimate
+from sessions.seekers.fit import final_estimate, top_curvature
 
 
 def parabola_vertex(
@@ -97,10 +97,10 @@ class ParabolicSeeker(FilteredSeeker):
     as_printed = False
     __slots__ = ()
 
-    def plan(self) -> Plan:
+    def plan(self, lo: float, guess: float, hi: float) -> Plan:
         cfg = self.cfg
         pts: list[tuple[float, float]] = []
-        for g in cfg.bracket:  # Steps 1-4
+        for g in (lo, guess, hi):  # Steps 1-4
             ev: Evaluation = yield g
             pts.append((ev.candidate, ev.power))
         pts.sort()
@@ -120,7 +120,7 @@ class ParabolicSeeker(FilteredSeeker):
             g4 = parabola_vertex(g1, p1, g2, p2, g3, p3)  # Step 5
             if g4 is None:
                 return best, "degenerate parabola"
-            g4 = self.clamp(g4)
+            g4 = self.clamp(g4)  # Step 6: every candidate within (γ1, γ3), the hard bounds
             if guarded and min(abs(g4 - g) for g, _ in pts) < cfg.min_step:
                 se = {ev.candidate: ev.stderr for ev in self.evaluations}
                 if vertex_stderr(pts, [se.get(g, math.inf) for g, _ in pts]) < cfg.min_step:
@@ -130,6 +130,9 @@ class ParabolicSeeker(FilteredSeeker):
                     return best, "no room left for a new point"
             ev = yield g4  # Step 6
             pts = step7(pts, ev.candidate, ev.power, as_printed=self.as_printed)  # Step 7
+
+    def curvature_hint(self) -> float | None:
+        return top_curvature(self.evaluations)
 
 
 class ParabolicAsPrintedSeeker(ParabolicSeeker):

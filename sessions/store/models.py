@@ -35,7 +35,7 @@ from sqlalchemy import (
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-from sessions.codes import AT_BOUNDS, PHASE_KINDS, ROLES, STATUSES, TOKEN_KINDS
+from sessions.codes import BOUNDS, PHASE_KINDS, ROLES, STATUSES, TOKEN_KINDS
 from sessions.units import VELOCITY_UNITS
 
 NAMING = {
@@ -120,7 +120,7 @@ class ExerciseSession(Base):
     __tablename__ = "sessions"
     __table_args__ = (
         CheckConstraint(_in("status", STATUSES), name="status"),
-        CheckConstraint(_in("at_bound", AT_BOUNDS), name="at_bound"),
+        CheckConstraint(_in("at_bound", BOUNDS), name="at_bound"),
         Index(None, "started_at", "id"),
         Index(None, "user_id", "started_at"),
         Index(None, "status"),
@@ -147,14 +147,15 @@ class ExerciseSession(Base):
     passivity_min: Mapped[float] = mapped_column(Double, default=0.0)
     evaluation_count: Mapped[int] = mapped_column(Integer, default=0)
     abort_reason: Mapped[str | None] = mapped_column(Text)
-    # the seeking issue's summary fields (sessions.summary.SessionSummary); NULL: not known
-    optimum_t: Mapped[float | None] = mapped_column(Double)  # when optimum_w held (the end)
-    at_bound: Mapped[str | None] = mapped_column(String(8))  # the best point at an edge
+    # the search (issue 14): where it ended against the bracket, when and where it first
+    # converged, the extremes of its targets, the regret (simulated users only)
+    at_bound: Mapped[str | None] = mapped_column(String(8))
+    optimum_t: Mapped[float | None] = mapped_column(Double)
+    t_converged: Mapped[float | None] = mapped_column(Double)
+    wd_converged: Mapped[float | None] = mapped_column(Double)
+    p_converged: Mapped[float | None] = mapped_column(Double)
     target_min: Mapped[float | None] = mapped_column(Double)
     target_max: Mapped[float | None] = mapped_column(Double)
-    t_converged: Mapped[float | None] = mapped_column(Double)  # the optimum first found …
-    wd_converged: Mapped[float | None] = mapped_column(Double)  # … and where
-    p_converged: Mapped[float | None] = mapped_column(Double)
     regret: Mapped[float | None] = mapped_column(Double)
 
 

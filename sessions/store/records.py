@@ -10,7 +10,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from sessions.codes import AtBound, PhaseKindName, Role, SessionStatus, TokenKind
+from sessions.codes import Bound, PhaseKindName, Role, SessionStatus, TokenKind
 from sessions.config import SessionConfig
 from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX
@@ -75,43 +75,40 @@ class SessionRecord(Record):
     passivity_min: float
     evaluation_count: int
     abort_reason: str | None
-    # the seeking summary (None where the seeker or the session did not say)
+    at_bound: Bound | None = None
     optimum_t: float | None = None
-    at_bound: AtBound | None = None
-    target_min: float | None = None
-    target_max: float | None = None
     t_converged: float | None = None
     wd_converged: float | None = None
     p_converged: float | None = None
+    target_min: float | None = None
+    target_max: float | None = None
     regret: float | None = None
 
     def summary(self) -> SessionSummary:
-        values: dict[str, Any] = {
-            "optimum_w": self.optimum_w,
-            "optimum_p": self.optimum_p,
-            "converged": self.converged,
-            "seeker": self.seeker,
-            "mean_power": self.mean_power,
-            "peak_power": self.peak_power,
-            "work": self.work,
-            "duration": self.duration,
-            "passivity_min": self.passivity_min,
-            "evaluations": self.evaluation_count,
-            "abort_reason": self.abort_reason,
-        }
-        for name in SUMMARY_EXTRA:  # those the engine's summary knows
-            if name in SessionSummary.model_fields:
-                values[name] = getattr(self, name)
-        return SessionSummary(**values)
+        return SessionSummary(
+            optimum_w=self.optimum_w,
+            optimum_p=self.optimum_p,
+            optimum_t=self.optimum_t,
+            converged=self.converged,
+            at_bound=self.at_bound,
+            t_converged=self.t_converged,
+            wd_converged=self.wd_converged,
+            p_converged=self.p_converged,
+            target_min=self.target_min,
+            target_max=self.target_max,
+            regret=self.regret,
+            seeker=self.seeker,
+            mean_power=self.mean_power,
+            peak_power=self.peak_power,
+            work=self.work,
+            duration=self.duration,
+            passivity_min=self.passivity_min,
+            evaluations=self.evaluation_count,
+            abort_reason=self.abort_reason,
+        )
 
     def session_config(self) -> SessionConfig:
         return SessionConfig.model_validate(self.config)
-
-
-SUMMARY_EXTRA = (
-    "optimum_t", "at_bound", "target_min", "target_max", "t_converged", "wd_converged",
-    "p_converged", "regret",
-)  # fmt: skip
 
 
 class PhaseRecord(Record):
@@ -161,7 +158,7 @@ class ProgressPoint(Record):
     protocol: str  # the protocol's name ("" without one)
     seeker: str
     converged: bool
-    at_bound: AtBound | None
+    at_bound: Bound | None
     optimum_w: float | None  # the optimum at the end (what was stored), rad/s
     optimum_p: float | None
     optimum_t: float | None

@@ -31,7 +31,6 @@ from sessions.store.models import (
     utcnow,
 )
 from sessions.store.records import (
-    SUMMARY_EXTRA,
     EvaluationRecord,
     EventRecord,
     Page,
@@ -43,6 +42,16 @@ from sessions.store.users import page_bounds
 from sessions.summary import SessionSummary
 
 RESTART_REASON = "server restarted"
+SEARCH_FIGURES = (
+    "at_bound",
+    "optimum_t",
+    "t_converged",
+    "wd_converged",
+    "p_converged",
+    "target_min",
+    "target_max",
+    "regret",
+)  # the summary's search figures, each a column of its own (issue 14)
 
 
 def evaluation_row(session_id: int, ev: Any, field: str = "evaluation") -> dict[str, Any]:
@@ -274,9 +283,8 @@ class SessionRepository:
                 passivity_min=sm.passivity_min,
                 evaluation_count=sm.evaluations,
                 abort_reason=None,
+                **{name: getattr(sm, name) for name in SEARCH_FIGURES},
             )
-            # the seeking summary's fields, where the engine's summary has them
-            values.update({k: getattr(sm, k) for k in SUMMARY_EXTRA if hasattr(sm, k)})
             if sm.seeker:
                 values["seeker"] = v.identifier("summary.seeker", sm.seeker)
             if reason is None:

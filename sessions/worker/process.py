@@ -277,6 +277,9 @@ class WorkerProcess:
             self.emit(Faulted(time.monotonic(), sid, self.fault))
             self.emit(Rejected(now, "start", f"machine fault: {self.fault}"))
             return False
+        truth = machine.truth()
+        if truth is not None:  # a simulated person: the summary scores the regret
+            loop.attach_truth(truth)
         loop.begin(q0, w0)
         machine.activate()
         return True

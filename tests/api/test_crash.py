@@ -10,6 +10,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from testing.live import wait_for
 from testing.server import start_server, worker_pid
 
 
@@ -61,13 +62,31 @@ def test_worker_killed_session_aborted_api_stays_up(tmp_path: Path) -> None:
     with start_server(tmp_path) as srv, srv.client("trainer") as c:
         uid = c.post("/api/v1/users", json={"name": "Lee"}).json()["id"]
         sid = c.post("/api/v1/sessions", json={"user_id": uid, "duration": 120}).json()["id"]
-        time.sleep(2.0)
+        url = f"/api/v1/sessions/{sid}/telemetry"
+
+        def stored() -> int:
+            return int(c.get(url, params={"points": 10}).json()["samples"])
+
+        # wait (event-driven) until at least a second of it is committed to the store
+        assert wait_for(lambda: stored() >= 1000, timeout=20.0, every=0.1)
+        committed = stored()
         wpid = worker_pid(srv.proc.pid)
         assert wpid is not None
         os.kill(wpid, signal.SIGKILL)
         body = srv.wait_status(sid, {"aborted", "completed", "stopped", "faulted"}, 10)
         assert body["session"]["status"] == "aborted"
         assert "worker" in body["session"]["abort_reason"]
+        # the data it had is kept, every period of it: what was committed before the kill
+        # and at most what the worker ran, the session clock continuous at the loop's period
+        tel = c.get(url, params={"points": 200_000}).json()
+        assert not tel["decimated"]
+        t = np.asarray(tel["channels"]["t"], dtype=float)
+        assert committed <= tel["samples"] == len(t) <= 120_000
+        assert np.allclose(np.diff(t), 1e-3) and t[0] < 2e-3
+        w = np.asarray(tel["channels"]["w"], dtype=float)
+        assert np.all(np.isfinite(w)) and np.ptp(w) > 0.1  # the handle moved: real samples
+        csv_rows = c.get(f"{url}.csv").text.strip().splitlines()
+        assert len(csv_rows) - sum(r.startswith("#") for r in csv_rows) - 1 == tel["samples"]
         health = httpx.get(srv.url + "/healthz").json()
         assert health["status"] == "degraded" and health["worker"] == "lost"
         assert c.get("/api/v1/machine").json()["state"] == "lost"

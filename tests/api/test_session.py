@@ -48,6 +48,12 @@ def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:
     assert s["status"] == "completed", body
     assert s["converged"]
     assert s["optimum_w"] == pytest.approx(w_star, rel=0.05)
+    # the search's figures (issue 14): inside the bracket, first converged, scored on the
+    # simulated person's true power
+    lo, _, hi = s["config"]["seeker"]["bracket"]
+    assert s["at_bound"] is None and 0.0 < s["t_converged"] < s["optimum_t"] <= s["duration"]
+    assert lo <= s["target_min"] <= s["wd_converged"] <= s["target_max"] <= hi
+    assert 0.0 < s["regret"] < 0.2
     # the duration, then the wind-down to rest (the closing stop phase)
     assert 30.0 < s["duration"] < 30.0 + 8.0
     assert len(body["evaluations"]) == s["evaluation_count"] >= 3
@@ -71,8 +77,11 @@ def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:
     with server.client("trainer") as c:
         again = c.post("/api/v1/sessions", json={"user_id": user["id"], "duration": 5.0})
         assert again.status_code == 201
-        lo, mid, hi = again.json()["config"]["seeker"]["bracket"]
-        assert mid == pytest.approx(s["optimum_w"]) and lo < mid < hi
+        config = again.json()["config"]
+        v = s["optimum_w"]
+        assert 1.5 * v <= 0.9 * config["machine"]["max_velocity"]  # within the headroom: as is
+        # the documented bracket, not merely an increasing one: [0.6 v, v, 1.5 v]
+        assert config["seeker"]["bracket"] == pytest.approx([0.6 * v, v, 1.5 * v], rel=1e-9)
         assert c.post(f"/api/v1/sessions/{again.json()['id']}/stop").status_code == 202
         end = server.wait_status(again.json()["id"], {"stopped", "completed"}, 15)
         assert end["session"]["status"] == "stopped"

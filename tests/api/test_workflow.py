@@ -107,9 +107,11 @@ def test_the_protocol_runs_to_rest_and_its_phases_are_stored(
     assert [p["kind"] for p in phases] == ["warmup", "seek", "train", "cooldown"]
     warm, seek, train, cool = phases
     assert warm["t_start"] == 0.0 and warm["t_end"] == pytest.approx(5.0)
-    assert seek["t_end"] - seek["t_start"] < 60.0 and seek["optimum_w"] == pytest.approx(
-        s["optimum_w"]
-    )
+    assert seek["t_end"] - seek["t_start"] < 60.0
+    # tracked through the training (the seeker's track phase): the optimum at its end is the
+    # session's, and the search's own is close to it
+    assert train["optimum_w"] == pytest.approx(s["optimum_w"])
+    assert seek["optimum_w"] == pytest.approx(s["optimum_w"], rel=0.05)
     assert train["t_end"] - train["t_start"] == pytest.approx(2.0 + 2 * 20.0)
     assert [i["interval"] for i in train["detail"]["intervals"]] == [1, 2]
     assert cool["t_end"] - cool["t_start"] >= 5.0 + 1.0

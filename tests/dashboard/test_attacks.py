@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 
+from sessions.config import SeekerConfig
 from testing.browser import TRAINER, DemoServer
 from testing.viser_wire import RawClient, gui_update, open_proxy, open_tcp, tcp_listeners
 
@@ -167,7 +168,7 @@ def test_one_trainers_form_is_not_another_trainers(server: DemoServer) -> None:
     cfg = detail["config"]
     assert cfg["duration"] == 7.0
     assert cfg["controller"]["ks"] != 500.0
-    assert cfg["seeker"]["kind"] == "brent"
+    assert cfg["seeker"]["kind"] == SeekerConfig().kind  # the form's default, not "fixed"
     assert wait_state(server, "idle", 30.0) == "idle"
 
 

@@ -5,14 +5,19 @@ from __future__ import annotations
 
 import html
 import math
+from datetime import UTC, datetime
 
 import numpy as np
+import pytest
 
 from sessions.config import parse_session_config
+from sessions.store import SessionRecord, UserRecord
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
 from webui.charts import (
     LIVE,
+    SAMPLE_RATE,
+    WINDOW_S,
     LiveWindow,
     lead_finite,
     plottable,
@@ -23,6 +28,7 @@ from webui.charts import (
 from webui.escape import WORD_JOINER
 from webui.feed import describe_event
 from webui.progress import SeekerProgressView
+from webui.tabs.history import session_markdown, sessions_table
 
 
 def ring_rows(t: np.ndarray, session: int = 1) -> np.ndarray:
@@ -35,12 +41,16 @@ def ring_rows(t: np.ndarray, session: int = 1) -> np.ndarray:
 
 
 def test_the_live_window_keeps_the_last_ten_seconds_and_at_most_500_points() -> None:
-    win = LiveWindow(seconds=10.0, max_points=500)
-    for start in range(0, 30, 2):  # 30 s at 1 kHz, in 2 s batches
-        win.extend(ring_rows(np.arange(start, start + 2, 0.001)))
+    assert WINDOW_S == 10.0  # the documented window
+    win = LiveWindow()  # the dashboard's: WINDOW_S of a SAMPLE_RATE subscription
+    dt = 1.0 / SAMPLE_RATE
+    for start in range(0, 30, 2):  # 30 s at the live window's rate, in 2 s batches
+        win.extend(ring_rows(np.arange(start, start + 2, dt)))
     t = win.rows[:, LIVE["t"]]
     assert t[-1] == win.last[LIVE["t"]]
-    assert t[-1] - t[0] <= 10.0 + 1e-9
+    # the whole window, not a part of it: the last WINDOW_S seconds, every sample of them
+    assert t[-1] - t[0] == pytest.approx(WINDOW_S, abs=dt + 1e-9)
+    assert len(t) == pytest.approx(WINDOW_S * SAMPLE_RATE, abs=1)
     t_chart, w_chart = win.series("t", "w")
     assert len(t_chart) <= 500
     assert t_chart[-1] == t[-1]  # the newest sample is always drawn
@@ -131,3 +141,33 @@ def test_the_seeker_chart_shows_every_candidate_and_the_bracket() -> None:
     assert lo < 2.85 and hi > 3.47
     lo, hi = seeker_x_range([], (1.0, 6.0))
     assert lo < 1.0 and hi > 6.0
+
+
+def _record(**search: object) -> SessionRecord:
+    search = {"converged": False} | search
+    return SessionRecord(
+        id=7, user_id=1, account_id=None, backend="simulation",
+        config={"seeker": {"kind": "sweep"}, "controller": {"kind": "rise"}},
+        status="completed", started_at=datetime(2026, 12, 1, 12, tzinfo=UTC), ended_at=None,
+        seeker="sweep", optimum_w=6.0, optimum_p=9.5, mean_power=8.0,
+        peak_power=12.0, work=960.0, duration=120.0, passivity_min=0.0, evaluation_count=100,
+        abort_reason=None, **search,  # type: ignore[arg-type]
+    )  # fmt: skip
+
+
+def _user() -> UserRecord:
+    when = datetime(2026, 12, 1, tzinfo=UTC)
+    return UserRecord(
+        id=1, name="Ada", notes="", body_mass_kg=None, limb=None, created_at=when, updated_at=when
+    )
+
+
+def test_a_session_at_a_bound_tells_the_trainer_to_widen_the_bracket() -> None:
+    at = _record(at_bound="upper", target_min=2.0, target_max=6.0)
+    text = html.unescape(session_markdown(at))
+    assert "upper bound" in text and "Widen the bracket's upper end" in text
+    assert "not stored" in text and " converged" not in text
+    assert "6.000 (at the upper bound)" in html.unescape(sessions_table(_user(), 1, [at], None))
+    found = _record(converged=True, t_converged=11.6, wd_converged=3.2)
+    text = html.unescape(session_markdown(found))
+    assert "bound" not in text and "First converged at 11.6 s on 3.200 rad/s" in text

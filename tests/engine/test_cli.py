@@ -35,11 +35,15 @@ def test_simulate_json_and_csv(tmp_path: Path, scenario_file: Callable[..., Path
     figures = json.loads(proc.stdout)
     for key in (
         "w_star", "p_star", "wd_final", "power_ratio", "t_1pct", "t_99", "evaluations",
-        "passivity_min", "e_rms", "max_abs_u", "sim_seconds", "wall_seconds",
+        "passivity_min", "e_rms", "max_abs_u", "sim_seconds", "wall_seconds", "regret",
+        "at_bound", "target_min", "target_max", "t_converged", "wd_converged", "optimum_w",
+        "optimum_t",
     ):  # fmt: skip
         assert key in figures
     assert figures["w_star"] == pytest.approx(3.0)
     assert figures["sim_seconds"] == 12.0
+    assert 1.0 <= figures["target_min"] <= figures["target_max"] <= 4.0
+    assert 0.0 <= figures["regret"] < 1.0 and figures["at_bound"] is None
     lines = out.read_text().splitlines()
     assert lines[0] == csv_header()
     assert len(lines) == 1 + 12 * 500
@@ -56,6 +60,9 @@ def test_simulate_json_and_csv(tmp_path: Path, scenario_file: Callable[..., Path
         ("[seeker]\nbrakcet = [1.0, 2.0, 4.0]", "seeker.brakcet"),
         ("rate = 'fast'", "rate"),
         ("[machine\ninertia = 1", "not valid TOML"),
+        ("[user]\ntau0 = 1e308", "user.tau0"),
+        ("[user]\nkind = 'table'\npoints = [[0.0, 3.0], [1.0, 1.0]]", "user.points"),
+        ("[seeker]\nexpand = true", "seeker.expand_limit"),
     ],
 )
 def test_bad_scenarios_exit_2_naming_the_key(

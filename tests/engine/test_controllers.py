@@ -47,14 +47,70 @@ def test_rise_starts_from_zero_torque(e0: float, ad0: float, ks: float, alpha: f
     assert ctrl.command(e0, ad0, math.nan) == pytest.approx(0.0, abs=1e-12)
 
 
-def test_rise_loop_starts_from_zero_torque_with_an_initial_error() -> None:
-    cfg = parse_session_config({"controller": {"kind": "rise"}})
+@pytest.mark.parametrize("kind", ["sweep", "brent", "perturbation", "fixed"])
+def test_loop_begin_makes_rise_start_from_zero_torque(
+    kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Through Loop.begin, whatever the seeker's reference at t0: a seeker that starts in
+    # motion (wd ≠ w0, ad ≠ 0) must still give u(t0) = 0, the bracket of (23) taking e(t0)
+    # and ad(t0) from the seeker as it began.
+    cfg = parse_session_config({"controller": {"kind": "rise"}, "seeker": {"kind": kind}})
     loop = Loop(cfg)
+    seeker = loop.seeker
+    plain = type(seeker).begin
+
+    def in_motion(self, w0: float) -> None:
+        plain(self, w0)
+        self.wd, self.ad = 0.5, 1.3
+
+    monkeypatch.setattr(type(seeker), "begin", in_motion)
     loop.begin(0.0, 2.0)
-    loop.seeker.filter.reset(0.5)  # a reference away from the machine's velocity
-    loop.seeker.wd = loop.reference.wd = 0.5  # the loop reads the runner's reference
-    loop.controller.begin(2.0 - 0.5, 0.0)
     assert loop.step(0.0, 2.0) == pytest.approx(0.0, abs=1e-12)
+    assert loop.value("wd") == 0.5 and loop.value("ad") == 1.3  # the step saw the motion
+
+
+@pytest.mark.parametrize("ad", [-2.0, 1.5, 4.0])
+def test_controller_a_tracks_an_accelerating_reference_as_equation_9(ad: float) -> None:
+    # (7) u = -k e + J ad - τ: the J·ad term makes J ė = -k e hold while wd accelerates, so
+    # e(t) = e(0) exp(-k t / J) along a ramp too (a sign error in J·ad leaves e → ∓2J ad/k).
+    J, dt, k = 0.1, 1e-3, 1.0
+    user = SimulatedUser(UserConfig(kind="linear", tau0=2.0, wmax=40.0), dt, seed=0)
+    wd0 = 8.0
+    plant = Plant(J, w0=wd0 + 0.5)
+    ctrl = MeasuredTorqueController(k, J)
+    worst = 0.0
+    for n in range(1500):
+        t = n * dt
+        wd = wd0 + ad * t
+        tau = plant.sample_torque(user)
+        e = plant.w - wd
+        worst = max(worst, abs(e - 0.5 * math.exp(-k * t / J)))
+        plant.advance(ctrl.command(e, ad, tau), dt, user)
+    assert worst <= 0.6 * (k * dt / J) * 0.5 + 0.5 * abs(ad) * dt + 1e-9
+
+
+def test_rise_anti_windup_holds_the_integral_while_the_torque_is_clamped() -> None:
+    # The applied u is clamped below the command: the integrals must not grow further in
+    # the direction that pushed it there (else u stays saturated long after the error clears).
+    ctrl = RiseController(4.0, 0.5, 4.0, 0.1)
+    ctrl.begin(0.0, 0.0)
+    dt = 1e-3
+    e = 1.0  # w above wd: (23) commands braking, more and more as the integral grows
+    for _ in range(2000):
+        u_cmd = ctrl.command(e, 0.0, math.nan)
+        u = max(u_cmd, -2.0)  # the torque limit
+        ctrl.commit(e, 0.0, math.nan, u, u_cmd, dt)
+    held = ctrl.integral
+    assert ctrl.command(e, 0.0, math.nan) == pytest.approx(-5.0 - held)
+    # clamped from the first period on, so the integral never grew towards more braking
+    assert held == pytest.approx(0.0, abs=1e-12)
+    # without the clamp it grows by (ks+1)αr e + β per second
+    free = RiseController(4.0, 0.5, 4.0, 0.1)
+    free.begin(0.0, 0.0)
+    for _ in range(1000):
+        u_cmd = free.command(e, 0.0, math.nan)
+        free.commit(e, 0.0, math.nan, u_cmd, u_cmd, dt)
+    assert free.integral == pytest.approx(5.0 * 4.0 * 1.0 + 0.5, rel=1e-9)
 
 
 @pytest.mark.parametrize("gains", [(4.0, 0.5, 4.0), (2.0, 0.1, 0.1)])

@@ -38,15 +38,41 @@ def test_step_response_and_derivatives_are_exact(order: int, pole: float) -> Non
     assert worst < 1e-9
 
 
-def test_dc_gain_is_one_and_the_paper_coefficients() -> None:
+def test_dc_gain_is_one() -> None:
     f = TrajectoryFilter(4, 3.0, 1e-3)
     f.reset(1.0)
     for _ in range(20_000):
         f.step(4.0)
     assert f.wd == pytest.approx(4.0, abs=1e-12)
     assert abs(f.ad) < 1e-12 and abs(f.jd) < 1e-12
-    # (32): 81 / (s⁴ + 12 s³ + 54 s² + 108 s + 81) is (s + 3)⁴
-    assert np.allclose(np.poly([-3.0] * 4), [1, 12, 54, 108, 81])
+
+
+@pytest.mark.parametrize(("order", "omega"), [(4, 0.5), (4, 1.5), (4, 6.0), (3, 2.0)])
+def test_frequency_response_is_that_of_equation_32(order: int, omega: float) -> None:
+    # (32): wd/γ = 81 / (s⁴ + 12 s³ + 54 s² + 108 s + 81) = 3⁴/(s + 3)⁴, evaluated at s = jω
+    # from its printed coefficients; the filter's steady response to sin ωt must have that
+    # gain and phase (a wrong pole, order or step would not).
+    coeffs = {4: [1, 12, 54, 108, 81], 3: [1, 9, 27, 27]}[order]
+    s = 1j * omega
+    h = coeffs[-1] / np.polyval(coeffs, s)
+    dt = 1e-3
+    f = TrajectoryFilter(order, 3.0, dt)
+    f.reset(0.0)
+    n = round(40.0 / dt)
+    t = np.arange(n) * dt
+    y = np.empty(n)
+    for k in range(n):
+        f.step(math.sin(omega * t[k]))
+        y[k] = f.wd
+    late = t > 20.0  # transients gone (e^{-3·20})
+    tt = t[late] + dt  # the output after a step belongs to the end of the period
+    # least squares for A sin + B cos: the measured gain and phase
+    m = np.column_stack((np.sin(omega * tt), np.cos(omega * tt)))
+    (a, b), *_ = np.linalg.lstsq(m, y[late], rcond=None)
+    measured = complex(a, b)
+    # zero-order-hold input: the exact discretisation sees the held sine, a lag of dt/2
+    assert abs(measured) == pytest.approx(abs(h), rel=2e-3)
+    assert np.angle(measured) == pytest.approx(np.angle(h) - omega * dt / 2, abs=2e-3)
 
 
 def test_derivative_outputs_are_consistent_with_wd() -> None:

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from sessions.config import SeekerConfig
+from sessions.config import SeekerConfig, parse_session_config
 from sessions.seekers import make_seeker
 from sessions.seekers.parabolic import parabola_vertex, step7
 
@@ -93,17 +94,28 @@ def test_brent_finds_the_maximum_of_unimodal_functions(
 
 
 def test_brent_stops_on_noise_instead_of_chasing_it() -> None:
-    # A flat top under noise: once points can't be told apart, stop (and not after 60 points).
+    # A flat top under noise: once points can't be told apart, stop (and not after 60 points),
+    # near the top: over 25 noise draws the median miss is a tenth of the noise resolution
+    # δn = sqrt(k σ / |c|) ≈ 0.9 rad/s and three in four within a third of it. (One draw in
+    # five still closes the bracket on a noise-made descent next to γ2 = 2, 1.5 rad/s off:
+    # brent's weakness on noisy flat tops; the sweep regresses every sample instead.)
     import random
 
-    rng = random.Random(4)
-    cfg = SeekerConfig(kind="brent", bracket=(1.0, 2.0, 6.0), max_evaluations=60)
-    seeker = make_seeker(cfg, 1e-3, 15.0)
-    sigma = 0.02
-    found = seeker.drive(lambda x: 3.0 - 0.05 * (x - 3.5) ** 2 + rng.gauss(0, sigma), stderr=sigma)
-    assert seeker.reason == "bracket within the tolerance"
-    assert len(seeker.evaluations) < 20
-    assert 3.0 - 0.05 * (found - 3.5) ** 2 >= 3.0 - 3 * sigma  # within noise of the top
+    sigma, misses = 0.02, []
+    for seed in range(25):
+        rng = random.Random(seed)
+        cfg = SeekerConfig(kind="brent", bracket=(1.0, 2.0, 6.0), max_evaluations=60)
+        seeker = make_seeker(cfg, 1e-3, 15.0)
+        found = seeker.drive(
+            lambda x, rng=rng: 3.0 - 0.05 * (x - 3.5) ** 2 + rng.gauss(0, sigma), stderr=sigma
+        )
+        assert seeker.reason in ("bracket within the tolerance", "evaluation budget spent")
+        assert len(seeker.evaluations) < 25
+        misses.append(abs(found - 3.5))
+    misses.sort()
+    resolution = math.sqrt(2 * sigma / 0.05)
+    assert misses[len(misses) // 2] <= 0.15 * resolution
+    assert misses[3 * len(misses) // 4 - 1] <= 0.35 * resolution
 
 
 def test_parabolic_drive_finds_the_surrogate_optimum_in_four_evaluations() -> None:
@@ -126,3 +138,122 @@ def test_brent_bracketing_does_not_stride_past_a_visible_peak() -> None:
     candidates = [ev.candidate for ev in seeker.evaluations]
     assert max(candidates) <= 3.0 + 0.2 + 1e-9
     assert abs(found - 3.0) <= cfg.min_step
+
+
+# -- the seekers on whole sessions ----------------------------------------------------------
+
+
+def test_exp2_with_ergoseeks_defaults_ends_within_2pct_of_the_optimum() -> None:
+    from sessions.experiments import experiment
+    from sessions.simulation import run_simulation, score
+
+    s = score(run_simulation(experiment("exp2", paper=False, seeker=SeekerConfig().kind)))
+    assert s["converged"] and s["at_bound"] is None
+    assert abs(s["optimum_w"] - s["w_star"]) <= 0.02 * s["w_star"]
+    assert abs(s["wd_converged"] - s["w_star"]) <= 0.02 * s["w_star"]
+
+
+def test_each_power_is_placed_where_it_was_produced() -> None:
+    # p = τ̂·w at the mean of w: every window of exp2 (brent: windows, then the tracker) reads
+    # the true power at its abscissa; p = τ̂·wd at the mean of wd (the paper's (13)) reads the
+    # power of where the handle was not, while the tracking error has not died out.
+    from sessions.experiments import experiment
+    from sessions.simulation import run_simulation
+
+    def worst(measure: str) -> float:
+        # the paper's gains: a slow integral, so the tracking error lasts into the first window
+        cfg = experiment("exp2", paper=True, seeker="brent", duration=25.0)
+        seeker = {"measure": measure, "track": False}
+        cfg = cfg.model_copy(update={"seeker": cfg.seeker.model_copy(update=seeker)})
+        r = run_simulation(cfg)
+        p_star = r.user.optimum()[1]
+        return max(abs(ev.power - r.user.true_power(ev.candidate)) / p_star for ev in r.evaluations)
+
+    # what is left is τ̂ - τ = -J ė, the error still settling in the first window (the issue
+    # measured the same: −0.013 W)
+    assert worst("velocity") <= 0.006
+    assert worst("desired") > 0.01  # the bias of (13): the power of where the handle was not
+
+
+def test_perturbation_stops_only_once_theta_has_arrived() -> None:
+    # At the default tuning θ approaches w* geometrically; moving less than min_step a period
+    # is not arriving (the old rule, four such periods, fired at 3.32 and 3.26 for w* = 3.09).
+    from sessions.simulation import run_simulation
+
+    for guess in (3.5, 5.0):
+        cfg = parse_session_config(
+            {
+                "duration": 200.0,
+                "rate": 500.0,
+                "user": {"kind": "hill"},
+                "seeker": {
+                    "kind": "perturbation",
+                    "bracket": [1.0, guess, 6.0],
+                    "track": False,
+                    "max_evaluations": 100,
+                },
+            }
+        )
+        r = run_simulation(cfg)
+        w_star = r.user.w_star()
+        assert r.progress.reason == "θ settled"
+        marks = [ev.candidate for ev in r.evaluations]
+        stop = marks[-1]
+        assert abs(stop - w_star) < cfg.seeker.min_step
+        # the old rule would have stopped far earlier, well away from w*
+        old = next(
+            i
+            for i in range(4, len(marks))
+            if all(abs(marks[j] - marks[j - 1]) < cfg.seeker.min_step for j in range(i - 3, i + 1))
+        )
+        assert abs(marks[old] - w_star) > 3 * abs(stop - w_star)
+        assert r.column("wd")[-1] == pytest.approx(stop, abs=1e-6)  # the dither has faded
+
+
+def test_the_tracker_follows_an_optimum_that_drifts_20pct_in_120s() -> None:
+    from sessions.simulation import run_simulation
+
+    cfg = parse_session_config(
+        {
+            "duration": 120.0,
+            "seed": 3,
+            "user": {
+                "kind": "hill",
+                "noise": 0.02,
+                "ripple": 0.05,
+                "velocity_fatigue_tau": 40.0,
+                "velocity_fatigue_floor": 0.79,
+            },
+        }
+    )
+    r = run_simulation(cfg)
+    user, sm = r.user, r.summary
+    assert sm is not None and sm.t_converged is not None
+    drift = 1.0 - user.w_star(t=120.0) / user.w_star(t=0.0)
+    assert drift == pytest.approx(0.20, abs=0.005)
+    t, wd = r.column("t"), r.column("wd")
+    after = t >= sm.t_converged + 5.0  # once wd has reached the setpoint found
+    ratio = user.power_ratio(wd[after], t[after])
+    assert ratio.min() >= 0.98
+    # the optimum found first, and the one at the end, each worth 99 % of the person's then
+    first = user.power_ratio(np.array([sm.wd_converged]), np.array([sm.t_converged]))[0]
+    end = user.power_ratio(np.array([sm.optimum_w]), np.array([120.0]))[0]
+    assert first >= 0.99 and end >= 0.99
+    assert sm.optimum_t == pytest.approx(120.0)
+
+
+def test_tracking_costs_a_steady_user_under_1pct_of_power() -> None:
+    from sessions.simulation import run_simulation
+
+    def late_power(track: bool) -> float:
+        cfg = parse_session_config(
+            {"duration": 90.0, "seed": 2, "user": {"kind": "hill"}, "seeker": {"track": track}}
+        )
+        r = run_simulation(cfg)
+        t, w = r.column("t"), r.column("w")
+        late = t >= 30.0
+        return float(np.mean(r.user.power_ratio(w[late], t[late])))
+
+    on, off = late_power(True), late_power(False)
+    assert off >= 0.99
+    assert on >= off - 0.01

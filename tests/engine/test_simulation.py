@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sessions.config import parse_session_config
+from sessions.config import SeekerConfig, parse_session_config
 from sessions.experiments import experiment
 from sessions.simulation import run_simulation, score
 
@@ -40,7 +40,7 @@ def test_perturbation_converges_on_the_linear_user() -> None:
         {
             "duration": 120.0,
             "user": {"kind": "linear", "tau0": 2.0, "wmax": 6.0},
-            "seeker": {"kind": "perturbation", "bracket": [1.0, 2.0, 5.0]},
+            "seeker": {"kind": "perturbation", "bracket": [1.0, 2.0, 5.0], "track": False},
         }
     )
     result = run_simulation(cfg)
@@ -56,14 +56,41 @@ def test_experiments_converge_and_stay_passive(name: str, paper: bool) -> None:
     result = run_simulation(experiment(name, paper=paper, duration=60.0))
     figures = score(result)
     assert figures["power_ratio"] >= 0.99
-    # (5): W(t) = ∫ τ w dt ≥ -c², both as the machine estimates it and in truth
-    assert figures["passivity_min"] >= -1e-3
-    assert figures["true_passivity_min"] >= -1e-3
     assert result.true_work[-1] > 0.0
+    assert result.min_user_torque >= 0.0  # Assumption: 0 ≤ τ ≤ τmax
 
 
-def test_exp1_with_ergoseek_defaults_is_within_1pct_by_15s() -> None:
-    figures = score(run_simulation(experiment("exp1", paper=False, duration=40.0)))
+@pytest.mark.parametrize("controller", ["rise", "measured"])
+def test_passivity_holds_from_a_handle_spinning_backwards(controller: str) -> None:
+    # (5) W(t) = ∫ τ w dt ≥ -c². From rest W only grows (τ ≥ 0, w ≥ 0): a check that cannot
+    # fail. Started backwards (w0 = -2 rad/s, the person still pushing forward) W falls
+    # while the reference, bumpless from w0, brings the handle round: W must stay above -c²
+    # and come back up, and the machine's own estimate of W must follow the truth.
+    from sessions.loop import Loop
+    from sessions.people import SimulatedUser
+    from sessions.plant import Plant
+
+    cfg = parse_session_config({"duration": 15.0, "controller": {"kind": controller}})
+    user = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+    plant = Plant(cfg.machine.inertia, w0=-2.0)
+    loop = Loop(cfg)
+    loop.begin(plant.q, plant.w)
+    true_w = []
+    for _ in range(round(cfg.duration * cfg.rate)):
+        u = loop.step(plant.q, plant.w, plant.sample_torque(user))
+        plant.advance(u, cfg.dt, user)
+        user.advance(cfg.dt)
+        true_w.append(plant.user_work)
+    w_min = min(true_w)
+    assert w_min < -0.05  # the test can see a negative W
+    assert w_min > -cfg.machine.passivity_c2
+    assert true_w[-1] > 0.0 and not loop.passivity.breached
+    assert loop.passivity.minimum == pytest.approx(w_min, abs=0.1 + 0.2 * abs(w_min))
+
+
+@pytest.mark.parametrize("seeker", [SeekerConfig().kind, "parabolic"])
+def test_exp1_with_ergoseek_defaults_is_within_1pct_by_15s(seeker: str) -> None:
+    figures = score(run_simulation(experiment("exp1", paper=False, seeker=seeker, duration=40.0)))
     assert figures["t_1pct"] is not None and figures["t_1pct"] <= 15.0
 
 

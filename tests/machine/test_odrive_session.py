@@ -43,6 +43,11 @@ def rig():
         yield cfg, emu
 
 
+def _commanded(emu, since: float) -> int:
+    """Non-zero torque setpoints the device received since ``since``."""
+    return sum(v != 0.0 for _, v in emu.torques_since(since))
+
+
 def spec(emu, **kw):
     # generous I/O limits: host and device share a loaded VM, where a pty's kernel worker can
     # stall for tens of ms; the defaults (20 ms reply, 50 ms watchdog) are for hardware
@@ -91,8 +96,8 @@ def test_sigkill_of_the_worker_trips_the_device_watchdog(rig):
     with Worker(spec(emu, watchdog_timeout=timeout, reply_timeout=0.08), WorkerOptions()) as worker:
         worker.start()
         worker.start_session(cfg, "killed")
-        follow(worker, until="session_started")
-        time.sleep(0.5)
+        began = follow(worker, until="session_started").of("session_started")[0].t
+        assert wait_for(lambda: _commanded(emu, began) > 50, timeout=10.0)
         assert emu.snapshot().current_state == 8
         pid = worker.pid
         assert pid is not None
@@ -122,10 +127,9 @@ def test_estop_reaches_the_device_within_two_periods_and_latches(rig):
     with Worker(spec(emu), WorkerOptions()) as worker:
         worker.start()
         worker.start_session(cfg, "estop")
-        follow(worker, until="session_started")
-        time.sleep(0.5)
-        before = emu.torques_since(time.monotonic() - 0.2)
-        assert sum(v != 0.0 for _, v in before) > 50  # it was commanding torque
+        began = follow(worker, until="session_started").of("session_started")[0].t
+        # it was commanding torque (waited for, not slept on)
+        assert wait_for(lambda: _commanded(emu, began) > 50, timeout=10.0)
         sent = worker.estop()
         got = follow(worker, timeout=10)
         assert got.end is not None and got.end.reason == "e-stop"

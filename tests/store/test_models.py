@@ -126,6 +126,37 @@ def test_session_round_trip(store: Store) -> None:
         store.sessions.finish(sid, "stopped")
 
 
+@pytest.mark.parametrize(
+    "search",
+    [
+        {  # ended against the bracket: not converged, the hint the dashboard shows
+            "at_bound": "upper", "converged": False, "optimum_t": 30.0, "target_min": 2.0,
+            "target_max": 6.0, "regret": 0.081,
+        },
+        {  # converged at 11.6 s, tracked to the end
+            "t_converged": 11.625, "wd_converged": 3.2, "p_converged": 6.5, "optimum_t": 30.0,
+            "target_min": 1.5, "target_max": 4.75, "regret": 0.0125,
+        },
+    ],
+)  # fmt: skip
+def test_the_search_figures_round_trip(store: Store, search: dict[str, object]) -> None:
+    summary = SUMMARY.model_copy(update=search)
+    _, sid = _session(store)
+    done = store.sessions.finish(sid, "completed", summary)
+    assert done.summary() == summary
+    assert store.sessions.get(sid).summary() == summary
+    for name, value in search.items():
+        assert getattr(done, name) == value
+
+
+def test_a_summary_at_no_known_bound_is_refused(store: Store) -> None:
+    _, sid = _session(store)
+    bad = SUMMARY.model_dump() | {"at_bound": "sideways"}
+    with pytest.raises(StoreValueError, match="at_bound"):
+        store.sessions.finish(sid, "completed", bad)
+    assert store.sessions.get(sid).status == "running"
+
+
 def test_finish_keeps_abort_reason_and_live_figures(store: Store) -> None:
     _, sid = _session(store)
     done = store.sessions.finish(sid, "faulted", abort_reason="encoder lost")

@@ -36,6 +36,7 @@ def offline_summary(cfg):
     m.follow(loop.reference)
     m.arm(cfg)
     m.activate()
+    loop.attach_truth(m.truth())  # as the worker: the simulated person scores the regret
     loop.begin(0.0, 0.0)
     n = round(cfg.duration * cfg.rate)
     while not loop.finished:

@@ -36,6 +36,7 @@ def session_markdown(s: SessionRecord) -> Markdown:
     else:
         optimum = md("none")
     reason = md(" ({})", s.abort_reason) if s.abort_reason else md("")
+    search = search_markdown(s)
     lines = [
         md("Session **#{}** · {}{}", s.id, s.status, reason),
         md(
@@ -46,6 +47,7 @@ def session_markdown(s: SessionRecord) -> Markdown:
             s.evaluation_count,
         ),
         md("Optimum: {}", optimum),
+        *search,
         md(
             "Mean power {:.3f} W · peak {:.3f} W · work {:.1f} J · min W(t) {:.3g} J",
             s.mean_power,
@@ -56,6 +58,28 @@ def session_markdown(s: SessionRecord) -> Markdown:
         md("[Download CSV (full rate)](/api/v1/sessions/{}/telemetry.csv)", int(s.id)),
     ]
     return md_lines(lines)
+
+
+def search_markdown(s: SessionRecord) -> list[Markdown]:
+    """The search's figures: a hint to widen the bracket when the best point lay at a bound
+    (not stored as the user's optimum), when and where it first converged, its targets."""
+    lines = []
+    if s.at_bound is not None:
+        lines.append(
+            md(
+                "**The best point is at the {} bound** and the power still rises beyond it: "
+                "not an optimum (not stored). Widen the bracket's {} end.",
+                s.at_bound,
+                s.at_bound,
+            )
+        )
+    if s.t_converged is not None and s.wd_converged is not None:
+        lines.append(
+            md("First converged at {:.1f} s on {:.3f} rad/s", s.t_converged, s.wd_converged)
+        )
+    if s.target_min is not None and s.target_max is not None:
+        lines.append(md("Targets {:.3f}–{:.3f} rad/s", s.target_min, s.target_max))
+    return lines
 
 
 def sessions_table(
@@ -71,6 +95,8 @@ def sessions_table(
         lines += [md(""), md("| # | started | status | optimum |"), md("|---|---|---|---|")]
         for s in sessions[:10]:
             opt = f"{s.optimum_w:.3f}" if s.optimum_w is not None else "—"
+            if s.at_bound is not None:
+                opt += f" (at the {s.at_bound} bound)"
             started = s.started_at.strftime("%m-%d %H:%M:%S")
             lines.append(md("| {} | {} | {} | {} |", s.id, started, s.status, opt))
     return md_join("\n", lines)

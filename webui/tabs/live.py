@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, get_args
 
 import viser
 from pydantic import ValidationError
@@ -50,7 +50,8 @@ PRESETS: dict[str, str | None] = {DEFAULTS: None, "Paper Exp. 1": "exp1", "Paper
 BRACKET_AUTO = "around the stored optimum"
 BRACKET_CUSTOM = "custom (γ1, γ2, γ3)"
 CONTROLLERS = {"rise": "RISE, τ̂ observed (eq. 23)", "measured": "τ measured (eq. 7)"}
-SEEKERS = ("brent", "parabolic", "perturbation", "fixed")
+SEEKERS: tuple[str, ...] = get_args(SeekerConfig.model_fields["kind"].annotation)
+DEFAULT_SEEKER = SeekerConfig().kind
 DEFAULT_DURATION = 120.0
 
 
@@ -154,7 +155,7 @@ class LiveTab:
         )
         self.controller = gui.add_dropdown("Controller", tuple(CONTROLLERS))
         self.controller_help = MarkdownBox(gui, md("{}", CONTROLLERS["rise"]))
-        self.seeker = gui.add_dropdown("Seeker", SEEKERS)
+        self.seeker = gui.add_dropdown("Seeker", SEEKERS, initial_value=DEFAULT_SEEKER)
         self.objective = gui.add_dropdown("Objective", ("power", "surrogate"))
         self.bracket_mode = gui.add_dropdown("Bracket", (BRACKET_AUTO, BRACKET_CUSTOM))
         g = {"min": 0.05, "max": 100.0, "step": 0.01}
@@ -200,7 +201,7 @@ class LiveTab:
         name = PRESETS[self.preset.value]
         if name is None:
             gains = ControllerConfig().model_dump()
-            self.seeker.value, self.objective.value = "brent", "power"
+            self.seeker.value, self.objective.value = DEFAULT_SEEKER, "power"
             self.bracket_mode.value = BRACKET_AUTO
         else:
             gains = PAPER_GAINS[name]

@@ -1,11 +1,10 @@
-"""Protocols and the trainer's workflow (issue 15) and the seeking summary (issue 14):
-protocol templates, session phases, account preferences, and the session summary's new
-columns (the optimum first found and at the end with their times, at_bound, the extremes of
-the seeker's target, regret), all nullable: sessions stored before know none of them.
+"""Protocols and the trainer's workflow (issue 15): protocol templates, session phases
+(each with its summary) and account preferences. The session summary's seeking columns
+(at_bound, the optimum's times, targets, regret) are 0003's (issue 14).
 
-Revision ID: 0003
-Revises: 0002
-Create Date: 2026-11-24
+Revision ID: 0004
+Revises: 0003
+Create Date: 2026-12-01
 """
 
 from __future__ import annotations
@@ -15,27 +14,16 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = "0003"
-down_revision: str | None = "0002"
+revision: str = "0004"
+down_revision: str | None = "0003"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
 UTC_TIME = sa.DateTime(timezone=True)
-SUMMARY = (
-    "optimum_t", "target_min", "target_max", "t_converged", "wd_converged", "p_converged",
-    "regret",
-)  # fmt: skip
 PHASE_KINDS = "'warmup', 'seek', 'train', 'profile', 'cooldown', 'stop'"
 
 
 def upgrade() -> None:
-    with op.batch_alter_table("sessions") as batch:
-        for name in SUMMARY[:1]:
-            batch.add_column(sa.Column(name, sa.Double(), nullable=True))
-        batch.add_column(sa.Column("at_bound", sa.String(length=8), nullable=True))
-        for name in SUMMARY[1:]:
-            batch.add_column(sa.Column(name, sa.Double(), nullable=True))
-        batch.create_check_constraint("ck_sessions_at_bound", "at_bound IN ('lower', 'upper')")
     op.create_table(
         "session_phases",
         sa.Column("id", sa.Integer(), nullable=False),
@@ -106,7 +94,3 @@ def downgrade() -> None:
     op.drop_index("ix_protocol_templates_account_id", table_name="protocol_templates")
     op.drop_table("protocol_templates")
     op.drop_table("session_phases")
-    with op.batch_alter_table("sessions") as batch:
-        batch.drop_constraint("ck_sessions_at_bound", type_="check")
-        for name in (*SUMMARY, "at_bound"):
-            batch.drop_column(name)

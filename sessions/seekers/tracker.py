@@ -1,0 +1,222 @@
+"""The track phase: following an optimum that moves, after the search has converged.
+
+A person's optimum drifts during a session (fatigue lowers the maximal shortening velocity;
+the optimal cadence of cycling rises with effort). Once a numerical seeker has converged on
+θ, the tracker keeps θ there at a bounded cost and moves it when the power says so:
+
+- a slow dither on the candidate, γ = θ + A sin(ω t) (period ``dither_period``, ramped in
+  over one period and clipped to the bracket): it spreads w around θ so that the local slope
+  of p(w) can be seen. A is as small as the noise allows: the amplitude at which the slope
+  over ``track_memory`` pins θ down to PRECISION (2 %), from the fit's own residual noise,
+  between 0.8 % of θ (less would drown in what the model misses) and ``dither``·θ (5 %),
+  and never more than loses DITHER_COST (0.3 %) of the power at its extremes on the
+  measured curvature (½|p''|A² ≤ 0.003 p). On average it costs half that, well within the
+  1 % the issue allows;
+- every ``REFIT`` seconds, the local model of :mod:`.regression` over the samples since the
+  track phase began near θ (three dither amplitudes, 8-30 % of θ), weighted by
+  exp(−age/``track_memory``), with the ripple and a drift in time regressed out and the
+  curvature held near the search's (a ridge), else the generic −2p/θ² of a top where ±10 %
+  in w costs 1 % in p;
+- the model's slope may change in time (an x·τ term): its vertex at the latest row is the
+  optimum *now*, so a drifting optimum is followed without the window's lag;
+- that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
+  walk of WANDER·θ per √s, each refit a measurement of variance σv²·track_memory/REFIT
+  (the windows overlap: a refit brings REFIT/track_memory of new data). On a clean signal
+  θ follows within seconds; on a noisy one it moves only as the evidence accumulates, so
+  noise does not make it wander. At most ``RATE``·θ per second;
+- at a bound, with the slope pointing outward beyond two standard errors: ``at_bound`` (or
+  one expansion step with ``expand``). When θ leaves the bound again the optimum has come
+  inside: the search's result is then recorded as converged there.
+
+Each refit records an :class:`Evaluation` at θ (the fitted power there).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sessions.seekers.base import Evaluation
+from sessions.seekers.regression import MAX_SHARPNESS, Fit, P, Rows, T, W, fit
+
+if TYPE_CHECKING:
+    from sessions.seekers.base import Seeker
+
+REFIT = 1.0  # s between steps
+WANDER = 0.02  # the optimum's random walk, fraction of θ per √s (the filter's prior)
+RATE = 0.02  # the most θ moves, as a fraction of θ per second
+WINDOW = 0.3  # rows within three dither amplitudes of θ are used, at most this fraction …
+NARROW = 0.08  # … and at least this one (away from θ a Hill curve is no parabola)
+MIN_ROWS = 50
+DITHER_COST = 0.003
+PRECISION = 0.02
+MIN_DITHER = 0.008
+
+
+def smoothstep(x: float) -> float:
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
+
+
+class Tracker:
+    __slots__ = (
+        "owner", "rows", "theta", "curv", "t0", "amp", "omega", "period", "memory",
+        "next_fit", "last_fit", "level", "noise", "amp_now", "x", "var",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        owner: Seeker,
+        theta: float,
+        curvature: float | None,
+        t0: float,
+        rows: Rows,
+        noise: tuple[float, float] | None = None,
+    ) -> None:
+        cfg = owner.cfg
+        self.owner = owner
+        self.rows = rows
+        self.theta = owner.clamp(theta)
+        self.curv = curvature if curvature is not None and curvature < 0.0 else None
+        self.t0 = t0
+        self.amp = cfg.dither
+        self.period = cfg.dither_period
+        self.omega = 2.0 * math.pi / cfg.dither_period
+        self.memory = cfg.track_memory
+        self.next_fit = t0 + REFIT
+        self.last_fit = t0 + cfg.dither_period
+        self.level = owner.optimum_power
+        self.noise = noise  # (residual std of a row, its correlation inflation)
+        self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
+        self.var = (PRECISION * self.theta) ** 2
+        self.amp_now = self._wanted()
+        owner.optimum = self.theta
+
+    def target(self, t: float) -> float:
+        """The candidate at time t: θ with the dither, inside the bounds."""
+        x = t - self.t0
+        a = self.amplitude() * smoothstep(x / self.period)
+        return self.owner.clamp(self.theta + a * math.sin(self.omega * x))
+
+    def amplitude(self) -> float:
+        return self.amp_now
+
+    def _wanted(self) -> float:
+        """The first dither amplitude: what the search's noise asks for, within bounds."""
+        theta = self.theta
+        top = self._cap()
+        curv = self.curv
+        if curv is None and self.level is not None and self.level > 0.0:
+            curv = -2.0 * self.level / theta**2
+        if self.noise is None or curv is None:  # unknown: start small, grow as the fit asks
+            return min(MIN_DITHER * theta, top)
+        sigma, inflate = self.noise
+        n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
+        want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
+        return min(max(want, MIN_DITHER * theta), max(top, MIN_DITHER * theta))
+
+    def _cap(self) -> float:
+        """``dither``·θ, and at most DITHER_COST of the power lost at the dither's extremes."""
+        theta = self.theta
+        top = self.amp * theta
+        level = self.level if self.level is not None and self.level > 0.0 else None
+        curv = self.curv
+        if curv is None and level is not None:
+            curv = -2.0 * level / theta**2
+        if curv is not None and level is not None:
+            top = min(top, math.sqrt(2.0 * DITHER_COST * level / -curv))
+        return top
+
+    def update(self, t: float) -> Evaluation | None:
+        """A step towards the fitted vertex when one is due; the evaluation it records."""
+        if t < self.next_fit:
+            return None
+        self.next_fit = t + REFIT
+        if t < self.t0 + self.period:  # a whole dither period first: no slope from a transient
+            return None
+        dt_fit, self.last_fit = t - self.last_fit, t
+        f = self._fit(t)
+        if f is None:
+            return None
+        theta = self.theta
+        v, se = f.now if f.now is not None else f.vertex()
+        if math.isfinite(v) and math.isfinite(se) and abs(v - theta) <= WINDOW * theta:
+            self._filter(v, se, dt_fit)
+        else:  # no maximum near θ in the rows (they are on a flank): a Newton step with
+            self._filter(math.nan, math.inf, dt_fit)  # the search's curvature, if it is
+            g = self._fit(t, fixed=True)  # clear which way the top went
+            if g is not None and g.now is not None:
+                u, su = g.now
+                if math.isfinite(u) and abs(u - theta) > 3.0 * su and su < 0.05 * theta:
+                    self.x = u
+                    self.var = max(self.var, su * su)
+        self.x = min(max(self.x, (1.0 - WINDOW) * theta), (1.0 + WINDOW) * theta)
+        limit = RATE * theta * dt_fit
+        new = self.owner.clamp(theta + min(max(self.x - theta, -limit), limit))
+        self._bounds(new, f, t)
+        self.theta = new
+        power = f.value(new)
+        self.level = power
+        self.noise = (f.sigma, f.inflate)
+        # the dither the fit's noise asks for, by at most 1.5× a refit (it stays smooth)
+        self.amp_now = min(max(self._wanted(), self.amp_now / 1.5), self.amp_now * 1.5)
+        owner = self.owner
+        owner.optimum = new
+        owner.optimum_power = power
+        ev = Evaluation(t, new, power, math.sqrt(max(float(f.cov[0, 0]), 0.0)))
+        owner.evaluations.append(ev)
+        return ev
+
+    def _fit(self, t: float, *, fixed: bool = False) -> Fit | None:
+        """The local model around θ (within three dither amplitudes), from the rows of the
+        track phase (the search's moves are transients: the tracking error and τ̂ are off
+        while wd accelerates), weighted by age, the curvature held near the search's (a
+        ridge: a dither alone cannot pin it down)."""
+        theta = self.theta
+        half = min(WINDOW, max(3.0 * self.amp_now / theta, NARROW))
+        d = self.rows.view(since=max(t - 3.0 * self.memory, self.t0))
+        d = d[np.abs(d[:, W] - theta) <= half * theta]
+        if len(d) < MIN_ROWS:
+            return None
+        level = self.level if self.level is not None and self.level > 0.0 else None
+        level = level or max(float(np.mean(d[:, P])), 1e-9)
+        prior = self.curv if self.curv is not None else -2.0 * level / theta**2
+        # within what a person's top can be: ½|p''|θ²/p between 0.1 and MAX_SHARPNESS
+        sharp = 0.5 * -prior * theta**2 / level
+        prior *= min(max(sharp, 0.1), MAX_SHARPNESS) / max(sharp, 1e-12)
+        wts = np.exp(-(t - d[:, T]) / self.memory)
+        if fixed:
+            return fit(d, theta, half * theta, curvature=prior, moving=True, weights=wts)
+        return fit(d, theta, half * theta, prior=(prior, 0.5 * -prior), moving=True, weights=wts)
+
+    def _filter(self, v: float, se: float, dt: float) -> None:
+        """Kalman filter on the optimum: a random walk of WANDER·θ per √s, measured by the
+        fitted vertex *now* (the model's slope moves in time) with variance σ²·memory/dt
+        (overlapping windows: a refit brings dt/track_memory of new data)."""
+        self.var += (WANDER * self.theta) ** 2 * dt
+        if math.isfinite(v):
+            r = se * se * self.memory / max(dt, 1e-9)
+            gain = self.var / (self.var + r)
+            self.x += gain * (v - self.x)
+            self.var *= 1.0 - gain
+
+    def _bounds(self, new: float, f: Fit, t: float) -> None:
+        """At a bound with the slope pointing outward: at_bound (or expand)."""
+        owner = self.owner
+        side = None
+        for bound, name, sign in ((owner.hi, "upper", 1.0), (owner.lo, "lower", -1.0)):
+            if abs(new - bound) <= 1e-9 * bound:
+                slope, slope_se = f.slope(bound)
+                if sign * slope > 2.0 * slope_se:
+                    side = name
+        if side is not None and owner.expand(side):
+            side = None
+        was = owner.at_bound
+        owner.at_bound = side
+        if was is not None and side is None and owner.edge(new) is None:
+            owner.converged_at(t, new, f.value(new))  # the optimum came inside

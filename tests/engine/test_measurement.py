@@ -1,0 +1,169 @@
+"""Measuring p: the averaging window (averaging.py), the least-squares peak of the numerical
+seekers (fit.py) and the regression on every sample (regression.py), against known truths."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sessions.seekers.averaging import PowerAverager, summarise
+from sessions.seekers.base import Evaluation
+from sessions.seekers.fit import final_estimate, quadratic_peak, top_curvature
+from sessions.seekers.regression import Rows, fit
+
+
+def ar1(n: int, std: float, rho: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    x = np.empty(n)
+    x[0] = rng.normal(0.0, std)
+    b = std * math.sqrt(1 - rho * rho)
+    for k in range(1, n):
+        x[k] = rho * x[k - 1] + b * rng.normal()
+    return x
+
+
+# -- averaging.py ---------------------------------------------------------------------------
+
+
+def test_the_window_ends_on_a_whole_revolution_and_removes_the_ripple() -> None:
+    # p = 2 + 0.4 sin q at w = 3 rad/s: a window that ends on a whole revolution after the
+    # shortest window, and a mean with the ripple regressed out: exactly 2.
+    dt, w = 1e-3, 3.0
+    avg = PowerAverager(window=0.5, max_window=6.0, quiet=1e-6)
+    avg.start(0.0, 0.0)
+    k = 0
+    while True:
+        t = k * dt
+        q = w * t
+        if avg.add(t, q, 2.0 + 0.4 * math.sin(q), w):
+            break
+        k += 1
+    m = avg.result(t)
+    assert 2 * math.pi / w <= m.duration <= 2 * math.pi / w + 2 * dt  # one revolution
+    assert m.mean == pytest.approx(2.0, abs=1e-6)
+    assert m.velocity == pytest.approx(w)
+
+
+def test_a_quiet_signal_ends_at_the_shortest_window() -> None:
+    avg = PowerAverager(window=0.5, max_window=6.0, quiet=0.01)
+    avg.start(0.0, 0.0)
+    k = 0
+    while not avg.add(k * 1e-3, 0.001 * k, 3.0, 1.0):
+        k += 1
+    assert k * 1e-3 == pytest.approx(0.5, abs=2e-3)
+
+
+def test_stderr_by_batch_means_covers_correlated_noise() -> None:
+    # AR(1) noise correlated over ~30 samples: the naive σ/√n understates the error of the
+    # mean several-fold; batch means must not. Over many windows the reported stderr matches
+    # the scatter of the means.
+    n, rho = 4000, 0.97
+    means, errs = [], []
+    for seed in range(60):
+        p = 5.0 + ar1(n, 0.1, rho, seed)
+        m = summarise(np.zeros(n), p, 4.0, 1.0)
+        means.append(m.mean)
+        errs.append(m.stderr)
+    scatter = float(np.std(means, ddof=1))
+    naive = 0.1 / math.sqrt(n)
+    assert scatter > 4 * naive  # the correlation matters
+    assert float(np.sqrt(np.mean(np.square(errs)))) == pytest.approx(scatter, rel=0.35)
+
+
+# -- fit.py ----------------------------------------------------------------------------------
+
+
+def test_quadratic_peak_is_the_vertex_of_a_parabola_with_a_drift() -> None:
+    # p = 3 - 0.4 (g - 2.7)² - 0.01 t: the drift (fatigue) would bias a fit without its term
+    evs = [
+        Evaluation(t, g, 3.0 - 0.4 * (g - 2.7) ** 2 - 0.01 * t, 0.01)
+        for t, g in enumerate([1.0, 3.5, 2.0, 3.0, 2.5, 2.8, 2.6, 3.2, 2.2], start=1)
+    ]
+    assert quadratic_peak(evs, 0.0, 10.0) == pytest.approx(2.7, abs=1e-6)
+    assert top_curvature(evs) == pytest.approx(-0.8, rel=1e-6)
+    assert final_estimate(evs, 0.0, 10.0, fallback=1.0) == pytest.approx(2.7, abs=1e-6)
+
+
+def test_quadratic_peak_never_extrapolates_and_needs_a_maximum() -> None:
+    rising = [Evaluation(i, g, g, 0.01) for i, g in enumerate([1.0, 2.0, 3.0, 4.0])]
+    assert quadratic_peak(rising, 0.0, 10.0) is None  # no maximum: no peak
+    conv = [Evaluation(i, g, (g - 2.0) ** 2, 0.01) for i, g in enumerate([1.0, 2.0, 3.0])]
+    assert quadratic_peak(conv, 0.0, 10.0) is None  # a minimum is not a peak
+    far = [Evaluation(i, g, -((g - 9.0) ** 2), 0.01) for i, g in enumerate([1.0, 2.0, 3.0])]
+    assert quadratic_peak(far, 0.0, 10.0) == pytest.approx(3.0)  # kept within the points
+
+
+# -- regression.py ----------------------------------------------------------------------------
+
+
+def rows_of(w: np.ndarray, p: np.ndarray, q: np.ndarray, dt: float = 1e-3) -> np.ndarray:
+    rows = Rows(dt)
+    for k in range(len(w)):
+        rows.add(k * dt, q[k], p[k], w[k], w[k])
+    return rows.view()
+
+
+def test_fit_recovers_a_parabola_under_multiplicative_ripple() -> None:
+    # a sweep over w with p = (5 - 2 (w - 3)²)(1 + 0.2 sin q + 0.1 cos 2q): the ripple is
+    # regressed out, the parabola and its vertex come out exact
+    n = 20_000
+    t = np.arange(n) * 1e-3
+    w = 2.4 + 1.2 * (0.5 - 0.5 * np.cos(2 * math.pi * t / 20.0))
+    q = np.cumsum(w) * 1e-3
+    base = 5.0 - 2.0 * (w - 3.0) ** 2
+    p = base * (1.0 + 0.2 * np.sin(q) + 0.1 * np.cos(2 * q))
+    f = fit(rows_of(w, p, q), 3.0, 0.6)
+    assert f is not None
+    v, _ = f.vertex()
+    assert v == pytest.approx(3.0, abs=2e-3)
+    assert f.curvature[0] == pytest.approx(-4.0, rel=1e-2)
+    assert f.ripple[0] == pytest.approx(0.2, abs=5e-3) and f.ripple[3] == pytest.approx(
+        0.1, abs=5e-3
+    )
+    plain = fit(rows_of(w, p, q), 3.0, 0.6, ripple=False)  # without the ripple terms: off
+    assert plain is not None and abs(plain.vertex()[0] - 3.0) > 5 * abs(v - 3.0)
+
+
+def test_vertex_standard_error_matches_its_scatter() -> None:
+    # noise correlated over ~30 ms: the AR(1) inflation keeps the standard error honest
+    n, dt = 15_000, 1e-3
+    t = np.arange(n) * dt
+    w = 3.0 + 0.6 * np.sin(2 * math.pi * t / 5.0)
+    q = np.cumsum(w) * dt
+    vs, ses = [], []
+    for seed in range(40):
+        p = (4.0 - 1.0 * (w - 3.1) ** 2) * (1.0 + ar1(n, 0.05, math.exp(-dt / 0.03), seed))
+        f = fit(rows_of(w, p, q), 3.0, 0.6)
+        assert f is not None
+        v, se = f.vertex()
+        vs.append(v)
+        ses.append(se)
+    scatter = float(np.std(vs, ddof=1))
+    assert abs(float(np.mean(vs)) - 3.1) < 3 * scatter / math.sqrt(len(vs)) + 1e-3
+    assert float(np.sqrt(np.mean(np.square(ses)))) == pytest.approx(scatter, rel=0.4)
+
+
+def test_the_abscissa_ignores_the_persons_own_fluctuation() -> None:
+    # w = wd + e with e driven by the power's own noise (the person pushes, the handle speeds
+    # up): a regression on raw w reads that as a slope; rows place p at wd + ē (ē averaged
+    # over 0.5 s), so a flat power stays flat.
+    n, dt = 30_000, 1e-3
+    t = np.arange(n) * dt
+    wd = 3.0 + 0.1 * np.sin(2 * math.pi * t / 6.0)
+    noise = ar1(n, 0.05, math.exp(-dt / 0.03), 1)
+    p = 4.0 * (1.0 + noise)  # flat in w: the true slope is 0
+    w = wd + 0.5 * noise  # the handle follows the push
+    rows = Rows(dt)
+    for k in range(n):
+        rows.add(t[k], 0.0, p[k], w[k], wd[k])
+    f = fit(rows.view(), 3.0, 0.3, ripple=False)
+    slope, se = f.slope(3.0)
+    assert abs(slope) < 3 * se
+    raw = np.column_stack(
+        [t, w, p, np.zeros(n), np.ones(n), np.zeros(n), np.ones(n)]
+    )  # rows at full rate on the raw w
+    g = fit(raw, 3.0, 0.3, ripple=False)
+    raw_slope, raw_se = g.slope(3.0)
+    assert raw_slope > 5 * raw_se and raw_slope > 0.5  # the bias the rows avoid
