@@ -306,11 +306,14 @@ class Worker:
         """Emergency stop: the worker writes zero torque on its next cycle and latches until
         :meth:`reset`. Through the e-stop line of the ring's header (the worker looks at it
         every period, before its command pipe), so nothing queued can delay it. Returns the
-        monotonic time it was asked."""
+        monotonic time it was asked; a lost worker raises WorkerError (the line is pulled
+        all the same)."""
         if self._ring is None or self._closed:
             raise WorkerError("the worker is not running")
         t = time.monotonic()
-        stamp_estop(self._ring.view.hdr)
+        stamp_estop(self._ring.view.hdr)  # pulled even if it looks gone: it costs nothing
+        if self._state == "lost":  # nothing drives the motor; the caller is told so
+            raise WorkerError(f"the worker is lost ({self._fault}): reset it")
         return t
 
     def reset(self) -> None:
