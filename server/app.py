@@ -104,6 +104,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="ergoseek",
         version=VERSION,
         summary="Extremum-seeking exercise machine: sessions, users, setpoints, live telemetry.",
+        description="The API is SI throughout: velocities rad/s, torques N·m, powers W (and W/kg "
+        "where a user's body mass is known), work J, times s. The dashboard converts for the "
+        "person reading (rpm by default: `/api/v1/accounts/me/preferences`).",
         lifespan=lifespan,
         docs_url=None,  # served by server.api.docs: local assets, a strict policy
         redoc_url=None,

@@ -1,6 +1,7 @@
 """Every code that crosses a module or process boundary, defined once.
 
 - **Session status**: what the store keeps, the API filters on and the worker ends with.
+- **Protocol phases**: the kinds a session's protocol phases have (sessions.protocol).
 - **Bounds**: where a search ended against the trainer's bracket (``at_bound``).
 - **Seeker phases**: ``Seeker.phase``, and the ring's ``phase`` column (with the worker's
   :data:`STOPPING` for the stop ramp, which is not a seeker phase).
@@ -22,6 +23,10 @@ SessionStatus = Literal["running", "completed", "stopped", "aborted", "faulted"]
 EndStatus = Literal["completed", "stopped", "aborted", "faulted"]  # how a session ends
 STATUSES: tuple[SessionStatus, ...] = get_args(SessionStatus)
 END_STATUSES: tuple[EndStatus, ...] = get_args(EndStatus)
+
+# -- protocol phases ----------------------------------------------------------------------------
+PhaseKindName = Literal["warmup", "seek", "train", "profile", "cooldown", "stop"]
+PHASE_KINDS: tuple[PhaseKindName, ...] = get_args(PhaseKindName)  # "stop": the runner's own
 
 # -- seeker phases -----------------------------------------------------------------------------
 DELAY, SETTLING, MEASURING, DONE = 0, 1, 2, 3

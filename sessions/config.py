@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from sessions import stability
+from sessions.protocol.config import Protocol, headroom_problem
 
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -298,7 +299,11 @@ class SeekerConfig(StrictModel):
 class SessionConfig(StrictModel):
     """One whole session: how long, how fast, on what machine, for whom, with what."""
 
-    duration: Positive = Field(120.0, le=24 * 3600, description="s")
+    duration: Positive = Field(
+        120.0,
+        le=24 * 3600,
+        description="s; with a protocol, the longest it may take (default: the protocol's own)",
+    )
     rate: Positive = Field(1000.0, ge=50.0, le=20000.0, description="loop rate, Hz")
     seed: int = Field(
         1, ge=0, lt=SEED_LIMIT, description="seeds every random process of the simulated user"
@@ -307,6 +312,9 @@ class SessionConfig(StrictModel):
     user: UserConfig = UserConfig()
     controller: ControllerConfig = ControllerConfig()
     seeker: SeekerConfig = SeekerConfig()
+    protocol: Protocol | None = Field(
+        None, description="the phases the session runs (none: one seek phase for the duration)"
+    )
 
     @model_validator(mode="after")
     def _within_machine(self) -> SessionConfig:
@@ -336,12 +344,43 @@ class SessionConfig(StrictModel):
             raise ValueError(problem)
         return self
 
+    @model_validator(mode="after")
+    def _protocol(self) -> SessionConfig:
+        """A protocol's velocities within the machine's headroom and never above the bracket's
+        upper bound γ3 (a hard bound for this person, as for the seeker), and a duration that
+        lets it finish (by default exactly that)."""
+        if self.protocol is None:
+            return self
+        problem = headroom_problem(self.protocol, self.machine.max_velocity)
+        if problem is not None:
+            raise ValueError(f"{problem[0]}: {problem[1]}")
+        top = self.seeker.bracket[2]
+        for key, v in self.protocol.velocities():
+            if v > top:
+                raise ValueError(
+                    f"{key}: {v:g} rad/s is above the bracket's upper bound γ3 = {top:g} rad/s "
+                    "(the person's limit: widen seeker.bracket if it is safe)"
+                )
+        bracket = (self.seeker.bracket[0], self.seeker.bracket[2])
+        longest = self.protocol.longest(bracket, self.machine.max_velocity)
+        if "duration" not in self.model_fields_set:
+            if longest > 24 * 3600:
+                raise ValueError(f"protocol: takes up to {longest:.0f} s, more than a day")
+            object.__setattr__(self, "duration", float(math.ceil(longest)))  # frozen: set once
+            return self
+        if self.duration < longest:
+            raise ValueError(
+                f"duration: {self.duration:g} s is shorter than the protocol may take "
+                f"({math.ceil(longest)} s); leave it out to use that"
+            )
+        return self
+
     @property
     def dt(self) -> float:
         return 1.0 / self.rate
 
 
-_KEY = re.compile(r"[a-z_][a-z0-9_]*(\.[a-z_][a-z0-9_]*)*")
+_KEY = re.compile(r"[a-z_][a-z0-9_]*(\.[a-z0-9_]+)*")  # seeker.bracket, phases.2
 
 
 class ScenarioError(ValueError):

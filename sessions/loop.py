@@ -3,6 +3,8 @@
 Per period (ros2_control's read → update → write, the read and write being the caller's):
     e = w - wd (3); u = controller (7) or (23); limits; τ or τ̂ (28); p (4) or (31);
     W += τ w dt (5); the seeker is told p and advances the reference to the next period.
+The reference comes from the protocol runner (:mod:`sessions.protocol.runner`), which wraps the
+seeker: a session without a protocol is one seek phase, whose reference is the seeker's own.
 The loop knows nothing of clocks, processes or the web: time is the step count × dt.
 Each step leaves its telemetry row in ``row`` (channels of :mod:`sessions.telemetry`), plain
 floats for whoever records them (simulation arrays, the worker's shared-memory ring).
@@ -27,6 +29,7 @@ from sessions.controllers import make_controller
 from sessions.limits import Limits
 from sessions.objective import modified_power, surrogate_power
 from sessions.passivity import PassivityMonitor
+from sessions.protocol.runner import ProtocolRunner
 from sessions.seekers import Evaluation, make_seeker
 from sessions.stability import deadbeat_gain
 from sessions.telemetry import INDEX, WIDTH
@@ -35,9 +38,9 @@ from sessions.truth import RegretMeter, Truth
 
 class Loop:
     __slots__ = (
-        "cfg", "dt", "k", "controller", "seeker", "limits", "passivity", "rho", "surrogate",
-        "at_w", "row", "flags", "evaluation", "peak_power", "power_sum", "target_min",
-        "target_max", "fault", "regret_meter", "_calls",
+        "cfg", "dt", "k", "controller", "seeker", "reference", "limits", "passivity", "rho",
+        "surrogate", "at_w", "row", "flags", "evaluation", "peak_power", "power_sum", "stage",
+        "target_min", "target_max", "fault", "regret_meter", "_calls",
     )  # fmt: skip
 
     def __init__(
@@ -49,6 +52,7 @@ class Loop:
         self.k = 0
         self.controller = make_controller(cfg.controller, m.inertia)
         self.seeker = make_seeker(cfg.seeker, self.dt, m.max_velocity, as_printed=as_printed)
+        self.reference = ProtocolRunner(cfg, self.seeker)  # wd, ad, γ: the seeker's in a seek
         self.limits = Limits(m.max_torque, m.max_velocity, deadbeat_gain(m.inertia, self.dt))
         self.passivity = PassivityMonitor(m.passivity_c2)
         self.rho = cfg.seeker.rho
@@ -59,6 +63,7 @@ class Loop:
         self.evaluation: Evaluation | None = None
         self.peak_power = 0.0
         self.power_sum = 0.0
+        self.stage = 0  # the protocol phase whose reference the last step used
         self.target_min = math.inf
         self.target_max = -math.inf
         self.fault: str | None = None
@@ -68,7 +73,7 @@ class Loop:
         # bound once: step() runs every period
         self._calls = (
             self.controller.command, self.limits.apply, self.controller.commit,
-            self.passivity.add, self.seeker.tell,
+            self.passivity.add, self.reference.tell,
         )  # fmt: skip
 
     def attach_truth(self, truth: Truth) -> None:
@@ -77,10 +82,11 @@ class Loop:
 
     def begin(self, q0: float, w0: float) -> None:
         """Start at the machine's current state: the reference starts at w0, u(t0) = 0 for RISE."""
-        seeker = self.seeker
-        seeker.begin(w0)
-        self.controller.begin(w0 - seeker.wd, seeker.ad)
-        self.row = (0.0, q0, w0, seeker.wd, seeker.ad, 0.0, 0.0, 0.0, 0.0, seeker.target)
+        ref = self.reference
+        ref.begin(w0)
+        self.controller.begin(w0 - ref.wd, ref.ad)
+        self.row = (0.0, q0, w0, ref.wd, ref.ad, 0.0, 0.0, 0.0, 0.0, ref.target)
+        self.stage = ref.phase
 
     def step(
         self, q: float, w: float, tau_measured: float = math.nan, held: float | None = None
@@ -91,9 +97,10 @@ class Loop:
         dt = self.dt
         t = self.k * dt
         command, apply, commit, add_work, tell = self._calls
-        seeker = self.seeker
-        wd = seeker.wd
-        ad = seeker.ad
+        ref = self.reference
+        wd = ref.wd
+        ad = ref.ad
+        self.stage = ref.phase
         e = w - wd  # (3)
         u_cmd = command(e, ad, tau_measured)
         u = apply(u_cmd, w)
@@ -112,7 +119,7 @@ class Loop:
             u = self._nonfinite(u, tau, p, w)
             work = self.passivity.work
         self.evaluation = tell(t, q, p, e)
-        target = seeker.target
+        target = ref.target
         if target < self.target_min:
             self.target_min = target
         if target > self.target_max:
@@ -123,6 +130,15 @@ class Loop:
         self.flags = self.limits.flags
         self.k += 1
         return u
+
+    def wind_down(self) -> None:
+        """Bring the handle to rest under control (the protocol's closing stop), from now."""
+        self.reference.wind_down()
+
+    @property
+    def finished(self) -> bool:
+        """The protocol is over and the handle at rest: the torque may be released."""
+        return self.reference.finished
 
     def _nonfinite(self, u: float, tau: float, p: float, w: float) -> float:
         """Name the first non-finite value; never return a non-finite torque."""

@@ -11,7 +11,9 @@ The policy, in the order it applies:
 - **setpoint** of the ``fixed`` seeker: unless given, the stored optimum (within the headroom);
 - **controller**: one the machine can run (controller A needs a torque sensor);
 - **user**: the simulated person standing in for the user on a simulated machine;
-- **seed**: the request's, or one drawn from the clock.
+- **seed**: the request's, or one drawn from the clock;
+- **protocol**: the request's (a template's, resolved by the caller into ``protocol``); its
+  velocities within the bracket; the duration, unless given, the longest the protocol takes.
 
 Problems raise :class:`RequestError` naming the field (dotted, under the request) and the
 reason; nothing is started.
@@ -24,7 +26,7 @@ import time
 from dataclasses import dataclass
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from sessions.config import (
     SEED_LIMIT,
@@ -36,6 +38,7 @@ from sessions.config import (
     validation_problems,
 )
 from sessions.machine.spec import check_controller
+from sessions.protocol.config import Protocol
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 MAX_ID = 2**53  # ids fit every database's integer (and JavaScript's)
@@ -71,13 +74,30 @@ class SessionStart(Request):
     model_config = ConfigDict(json_schema_extra={"examples": [START_EXAMPLE]})
 
     user_id: int = Field(..., ge=1, le=MAX_ID)
-    duration: Finite = Field(120.0, gt=0, le=3600.0, description="s")
+    duration: Finite = Field(
+        120.0,
+        gt=0,
+        le=3600.0,
+        description="s; with a protocol, leave it out: the longest the protocol may take",
+    )
     controller: ControllerConfig | None = None
     seeker: SeekerConfig | None = None
     limits: LimitsIn | None = None
     seed: int | None = Field(
         None, ge=0, lt=SEED_LIMIT, description="simulated machine: the user's noise seed"
     )
+    protocol: Protocol | None = Field(
+        None, description="the phases to run (SI: rad/s, s); none: one seek phase"
+    )
+    template_id: int | None = Field(
+        None, ge=1, le=MAX_ID, description="run this protocol template (instead of `protocol`)"
+    )
+
+    @model_validator(mode="after")
+    def _one_protocol(self) -> SessionStart:
+        if self.protocol is not None and self.template_id is not None:
+            raise ValueError("template_id: give a template or a protocol, not both")
+        return self
 
 
 class RequestError(ValueError):
@@ -167,18 +187,25 @@ def session_config(
 ) -> SessionConfig:
     """The session ``req`` asks for on ``rig``, for a user with this stored simulated
     profile and optimum. Raises :class:`RequestError`."""
+    if req.template_id is not None:  # the caller resolves it (server.service.templates)
+        raise RequestError("template_id", "not resolved into a protocol: nothing started")
     machine = fit_limits(req.limits, rig.machine)
     user = UserConfig.model_validate(sim_profile) if sim_profile else UserConfig()
     seed = req.seed if req.seed is not None else int(time.time() * 1000) % 2**31
+    parts: dict[str, Any] = {}
+    if req.protocol is None or "duration" in req.model_fields_set:
+        parts["duration"] = req.duration
+    if req.protocol is not None:
+        parts["protocol"] = req.protocol
     try:
         cfg = SessionConfig(
-            duration=req.duration,
             rate=rig.rate,
             seed=seed,
             machine=machine,
             user=user,
             controller=req.controller or ControllerConfig(),
             seeker=fit_seeker(req.seeker, optimum, machine.max_velocity),
+            **parts,
         )
     except ValidationError as exc:
         field, reason = validation_problems(exc)[0]

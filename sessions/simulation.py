@@ -17,6 +17,8 @@ from sessions.config import SessionConfig
 from sessions.loop import Loop
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
+from sessions.protocol.cues import CuedPerson
+from sessions.protocol.stage import Stage
 from sessions.seekers import Evaluation, SeekerProgress
 from sessions.summary import SessionSummary, summarize
 from sessions.telemetry import INDEX, WIDTH, csv_header
@@ -33,6 +35,7 @@ class SimulationResult:
     true_passivity_min: float  # from the user's true torque
     wall_seconds: float
     true_work: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    stages: tuple[Stage, ...] = ()  # the protocol runner's segments, as they began
     summary: SessionSummary | None = None
     min_user_torque: float = 0.0  # extremes of the user's true torque over every period
     max_user_torque: float = 0.0
@@ -47,14 +50,16 @@ class SimulationResult:
 
 
 def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> SimulationResult:
-    """Run ``cfg`` from rest (q = w = 0) for its whole duration."""
+    """Run ``cfg`` from rest (q = w = 0) for its whole duration, or, with a protocol, until the
+    protocol has ended at rest (the simulated person following its effort cues)."""
     dt = cfg.dt
     n = round(cfg.duration * cfg.rate)
     user = SimulatedUser(cfg.user, dt, cfg.seed)
     plant = Plant(cfg.machine.inertia)
     loop = Loop(cfg, as_printed=as_printed, truth=user)
     loop.begin(plant.q, plant.w)
-    seeker = loop.seeker
+    seeker, ref = loop.seeker, loop.reference
+    person = user if cfg.protocol is None else CuedPerson(user, ref, dt)
     buf = array("d")
     extend = buf.extend
     true_work = array("d")
@@ -63,7 +68,7 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
         loop.step,
         plant.sample_torque,
         plant.advance,
-        user.advance,
+        person.advance,
     )
     true_min = 0.0
     # The loop allocates only short-lived floats and tuples, freed by reference counting;
@@ -73,13 +78,15 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
     wall = time.perf_counter()
     try:
         for _ in range(n):
-            tau = sample(user)
+            tau = sample(person)
             u = step(plant.q, plant.w, tau)
             extend(loop.row)
-            advance(u, dt, user)
+            advance(u, dt, person)
             user_advance(dt)
             true_work.append(plant.user_work)
             torques.append(tau)
+            if ref.finished:
+                break
     finally:
         wall = time.perf_counter() - wall
         if gc_was_enabled:
@@ -98,6 +105,7 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
         true_passivity_min=true_min,
         wall_seconds=wall,
         true_work=tw,
+        stages=tuple(ref.log),
         summary=summarize(loop),
         min_user_torque=float(taus.min()) if len(taus) else 0.0,
         max_user_torque=float(taus.max()) if len(taus) else 0.0,

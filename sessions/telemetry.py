@@ -34,6 +34,7 @@ RECORD_EXTRA: tuple[tuple[str, str, str], ...] = (
     ("late", "us", "lateness of this cycle's wake-up behind its deadline"),
     ("mono", "s", "monotonic clock when the cycle started (CLOCK_MONOTONIC, all processes)"),
     ("session", "", "the worker's session number"),
+    ("stage", "", "the protocol phase: its index in the protocol (the closing stop after them)"),
 )
 RECORD_NAMES: tuple[str, ...] = NAMES + tuple(c[0] for c in RECORD_EXTRA)
 RECORD_UNITS: dict[str, str] = {**UNITS, **{c[0]: c[1] for c in RECORD_EXTRA}}

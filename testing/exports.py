@@ -3,6 +3,11 @@ ripple, RISE, brent), and the same telemetry tiled into a long session at full r
 
 from __future__ import annotations
 
+import math
+from datetime import datetime
+from typing import Any
+
+import fitdecode
 import numpy as np
 
 from sessions.config import SessionConfig
@@ -31,3 +36,23 @@ def tiled(rows: np.ndarray, repeats: int) -> dict[str, np.ndarray]:
     cols["q"] = cols["q"] + copy * (q[-1] - q[0] + rows[-1, INDEX["w"]] * dt)
     cols["W"] = cols["W"] + copy * W[-1]
     return cols
+
+
+def decode_fit(data: bytes) -> dict[str, list[dict[str, Any]]]:
+    """Every data message of a FIT file by name, fields by name (developer fields included),
+    read by fitdecode (an independent decoder) with the header's and the file's CRC checked."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    with fitdecode.FitReader(data, check_crc=fitdecode.CrcCheck.RAISE) as reader:
+        for frame in reader:
+            if isinstance(frame, fitdecode.FitDataMessage):
+                out.setdefault(frame.name, []).append({f.name: f.value for f in frame.fields})
+    return out
+
+
+def record_bins(t: np.ndarray, start: datetime, interval: int = 1) -> list[tuple[int, np.ndarray]]:
+    """docs/exports.md's rule, sample by sample: the record stamped T (POSIX s) holds the
+    samples whose absolute time lies in [T - interval, T), boundaries counted from the start's
+    whole second, a sample within 1 µs below a boundary counting as after it."""
+    base = math.floor(start.timestamp())
+    k = np.floor((start.timestamp() + t - base) / interval + 1e-6).astype(int) + 1
+    return [(base + int(rec) * interval, k == rec) for rec in np.unique(k)]

@@ -74,7 +74,10 @@ class ServerProcess:
 
     @property
     def database_url(self) -> str:
-        return f"sqlite:///{self.data_dir / SQLITE_FILENAME}"
+        """The server's database: ``env``'s ERGOSEEK_DATABASE_URL (PostgreSQL), else SQLite."""
+        return (
+            self.env.get("ERGOSEEK_DATABASE_URL") or f"sqlite:///{self.data_dir / SQLITE_FILENAME}"
+        )
 
     @property
     def log_path(self) -> Path:

@@ -5,9 +5,26 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
-from server.api import accounts, auth, docs, errors, health, live, machine, sessions, users
+from server.api import (
+    accounts,
+    auth,
+    docs,
+    errors,
+    exports,
+    health,
+    live,
+    machine,
+    preferences,
+    progress,
+    protocols,
+    sessions,
+    users,
+)
 
-ROUTERS = (auth.router, accounts.router, users.router, sessions.router, machine.router, live.router)
+ROUTERS = (
+    auth.router, preferences.router, accounts.router, users.router, sessions.router,
+    exports.router, progress.router, protocols.router, machine.router, live.router,
+)  # fmt: skip
 
 
 def mount(app: FastAPI) -> None:

@@ -92,6 +92,8 @@ async def _serve(ws: WebSocket, runtime: Runtime, account: AccountRecord, rate: 
     hub = runtime.hub
     sub = hub.subscribe(rate)
     hello = {"type": "hello", "account": account.login, "rate": sub.rate}
+    active = runtime.machine.active_session()  # a client joining mid-session: where it stands
+    hello["stage"] = active.stage.to_dict() if active and active.stage else None
     await ws.send_json({**hello, "machine": runtime.machine.status().model_dump()})
 
     async def send(frame: dict[str, object]) -> None:

@@ -19,6 +19,7 @@ from sessions.store import (
     AccountRecord,
     EvaluationRecord,
     EventRecord,
+    PhaseRecord,
     SessionRecord,
     SetpointRecord,
     UserRecord,
@@ -71,10 +72,16 @@ class Setpoints(BaseModel):
 
 # -- sessions -------------------------------------------------------------------------------------
 class SessionOut(BaseModel):
+    """A session (SI units): its summary, evaluations, events, protocol phases, live state."""
+
     session: SessionRecord
     evaluations: list[EvaluationRecord]
     events: list[EventRecord]
+    phases: list[PhaseRecord] = []
     live: Live | None = None
+    hint: str | None = Field(
+        None, description="what the trainer should know: e.g. the best point at a bracket edge"
+    )
 
 
 class TelemetryOut(BaseModel):

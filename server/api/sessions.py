@@ -1,5 +1,6 @@
-"""Sessions: start, stop, list, one session's summary, evaluations, live state, telemetry
-(decimated JSON or full-rate CSV) and events."""
+"""Sessions: start (with a protocol or a template), stop, list, one session's summary,
+evaluations, phases, live state, telemetry (decimated JSON or full-rate CSV) and events. SI
+units throughout (rad/s, N·m, W, J, s)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ from fastapi.responses import Response, StreamingResponse
 
 from server.api.deps import MachineDep, StoreDep, Trainer, Viewer
 from server.api.schemas import MAX_ID, Id, SessionOut, SessionStart, TelemetryOut
+from server.service.phases import summarize_phases
+from server.service.templates import resolve_template
 from sessions.codes import SessionStatus
-from sessions.store import EventRecord, Page, SessionRecord, Store
+from sessions.store import EventRecord, Page, PhaseRecord, SessionRecord, Store
 from sessions.telemetry import NAMES, UNITS
 
 router = APIRouter(prefix="/api/v1/sessions", tags=["sessions"])
@@ -25,7 +28,11 @@ router = APIRouter(prefix="/api/v1/sessions", tags=["sessions"])
     "", response_model=SessionRecord, status_code=201, summary="Start a session",
     responses={409: {"description": "a session is running, or the machine must be reset"}},
 )  # fmt: skip
-async def start_session(body: SessionStart, machine: MachineDep, account: Trainer) -> SessionRecord:
+async def start_session(
+    body: SessionStart, machine: MachineDep, store: StoreDep, account: Trainer
+) -> SessionRecord:
+    if body.template_id is not None:
+        body = await asyncio.to_thread(resolve_template, store, body, account)
     return await machine.start(body, account.id)
 
 
@@ -56,8 +63,39 @@ async def get_session(
         session=detail.session,
         evaluations=detail.evaluations,
         events=detail.events,
+        phases=detail.phases,
         live=machine.live(session_id),
+        hint=hint(detail.session),
     )
+
+
+def hint(s: SessionRecord) -> str | None:
+    """What the trainer should know about a session's result."""
+    if s.at_bound is not None:
+        lo, _, hi = s.config["seeker"]["bracket"]
+        edge = hi if s.at_bound == "upper" else lo
+        return (
+            f"the best point is at the {s.at_bound} bound of the bracket ({edge:g} rad/s) and "
+            "the power still rises beyond it: not stored as the optimum; widen the bracket"
+        )
+    return None
+
+
+@router.get(
+    "/{session_id}/phases", response_model=list[PhaseRecord],
+    summary="The protocol's phases: spans (s), powers (W), work (J), optimum (rad/s), fits",
+)  # fmt: skip
+async def session_phases(session_id: Id, store: StoreDep, _: Viewer) -> list[PhaseRecord]:
+    return await asyncio.to_thread(_phases, store, session_id)
+
+
+def _phases(store: Store, session_id: int) -> list[PhaseRecord]:
+    phases = store.phases.list(session_id)
+    if store.sessions.get(session_id).status != "running" and any(
+        p.mean_power is None for p in phases
+    ):  # an ended session whose summaries were never made (a crash): made now
+        phases = summarize_phases(store, session_id)
+    return phases
 
 
 @router.post(

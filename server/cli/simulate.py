@@ -30,6 +30,24 @@ def _clean(value: Any) -> Any:
     return value
 
 
+def phases(result: Any) -> list[dict[str, Any]]:
+    """Each protocol phase's span, totals and optimum (and a profile's fitted parameters)."""
+    from sessions.protocol.analysis import phase_spans, summarize_phase
+
+    cols = {n: result.column(n) for n in ("t", "q", "w", "tau", "W")}
+    end = float(cols["t"][-1]) + result.cfg.dt if len(cols["t"]) else 0.0
+    out = []
+    for span in phase_spans(result.stages, end, result.progress.target):
+        r = summarize_phase(cols, span)
+        row = {k: getattr(r, k) for k in ("kind", "name", "start", "end", "mean_power",
+                                          "peak_power", "work", "optimum_w")}  # fmt: skip
+        if r.profile is not None:
+            fit = r.profile.to_dict()
+            row["profile"] = {k: fit[k] for k in ("model", "tau0", "wmax", "pmax", "w_opt")}
+        out.append(row)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from server.cli import UsageError
     from sessions.config import load_scenario
@@ -42,7 +60,10 @@ def run(args: argparse.Namespace) -> int:
             result.write_csv(args.csv)
         except OSError as exc:
             raise UsageError(f"cannot write {args.csv}: {exc.strerror}") from None
-    figures = _clean(score(result))
+    figures = score(result)
+    if cfg.protocol is not None:
+        figures["phases"] = phases(result)
+    figures = _clean(figures)
     if args.json:
         print(json.dumps(figures))
         return 0
@@ -71,4 +92,9 @@ def run(args: argparse.Namespace) -> int:
         f"e_rms = {figures['e_rms']:.4f} rad/s   max|u| = {figures['max_abs_u']:.2f} N·m"
     )
     print(f"           {figures['sim_seconds']:.0f} s simulated in {figures['wall_seconds']:.2f} s")
+    for ph in figures.get("phases", []):
+        print(
+            f"phase      {ph['name']:12s} {ph['start']:7.1f} – {ph['end']:7.1f} s   "
+            f"mean {ph['mean_power']:.2f} W  peak {ph['peak_power']:.2f} W  {ph['work']:.0f} J"
+        )
     return 0

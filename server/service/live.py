@@ -26,6 +26,7 @@ from sessions.telemetry import RECORD_INDEX as RING
 # Channels a telemetry frame carries (a record's, sessions.telemetry).
 FRAME_CHANNELS: tuple[str, ...] = (
     "t", "q", "w", "wd", "ad", "u", "u_out", "tau", "p", "W", "gamma", "phase", "flags", "mono",
+    "stage",
 )  # fmt: skip
 FRAME_RATE_MAX = 30.0  # frames per second at most; faster sample rates come batched
 BACKLOG_SECONDS = 2.0  # pending samples a slow client may accumulate before losing the oldest

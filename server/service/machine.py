@@ -18,8 +18,9 @@ import contextlib
 import dataclasses
 import logging
 import math
+from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from server.service.live import LiveHub
 from server.service.pump import Pump
@@ -73,6 +74,11 @@ class Live(BaseModel):
     target: float | None = None
     done: bool = False
     evaluations: int = 0
+    stage: dict[str, Any] | None = Field(
+        None, description="the protocol stage running (sessions.protocol.stage.Stage), SI"
+    )
+    time_left: float | None = Field(None, description="s left in the stage (planned)")
+    phase_time_left: float | None = Field(None, description="s left in the phase (planned)")
 
 
 class MachineService:
@@ -285,9 +291,16 @@ class MachineService:
             done=active.done,
             evaluations=active.evaluations,
         )
+        stage = active.stage
+        if stage is not None:
+            out.stage = stage.to_dict()
         row = active.last_row
         if row is None:
             return out
+        if stage is not None:
+            now = float(row[RING["t"]])
+            out.time_left = max(0.0, stage.end - now)
+            out.phase_time_left = max(0.0, stage.phase_end - now)
         values = {k: float(row[RING[k]]) for k in LIVE_CHANNELS}
         clean = {k: (v if math.isfinite(v) else None) for k, v in values.items()}
         return out.model_copy(update={**clean, "phase": phase_name(float(row[RING["phase"]]))})

@@ -8,6 +8,11 @@ the live subscribers, and the only code that records a session.
 When a session completes with a converged seeker, its optimum becomes the user's setpoint. A
 worker that dies or stops beating ends the session ``aborted`` (its data stays) and the pump
 notes the machine lost (:attr:`Pump.lost`) until the service attaches a new worker.
+
+Protocol stages (:class:`~sessions.worker.StageBegun`) are stored as they come (an event, and a
+phase row for a phase's first stage: :mod:`server.service.phases`) and published as ``stage``
+frames; a phase's summary is computed from the store once its telemetry is stored, and every
+phase still without one when the session has ended.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from server.service.live import LiveHub
+from server.service.phases import record_stage, summarize_phases
 from server.service.session import LiveSession
 from sessions.codes import SessionStatus
 from sessions.store import ConflictError, Store, StoreValueError
@@ -36,6 +42,7 @@ from sessions.worker import (
     RingReader,
     SessionEnded,
     SessionStarted,
+    StageBegun,
     Worker,
     WorkerLost,
 )
@@ -56,6 +63,7 @@ class Pump:
         self.session: LiveSession | None = None  # the running session
         self.lost: str | None = None  # why the worker was lost (until a new one is attached)
         self._task: asyncio.Task[None] | None = None
+        self._later: set[asyncio.Task[None]] = set()  # phase summaries waiting for their data
 
     # -- life ------------------------------------------------------------------------------------
     def attach(self, worker: Worker) -> None:
@@ -155,6 +163,9 @@ class Pump:
         elif isinstance(ev, CandidateMeasured) and mine:
             self._evaluated(session, ev)  # type: ignore[arg-type]
             frame["type"] = "seeker"
+        elif isinstance(ev, StageBegun) and mine:
+            await self._staged(session, ev)  # type: ignore[arg-type]
+            frame["type"] = "stage"
         elif isinstance(ev, LimitHit | EStopped | Faulted) and session is not None:
             self._note(session, ev)
         elif isinstance(ev, SessionEnded) and mine:
@@ -180,6 +191,39 @@ class Pump:
         session.evaluations += 1
         with contextlib.suppress(StoreValueError):
             session.recorder.add_evaluation(ev)
+
+    async def _staged(self, session: LiveSession, ev: StageBegun) -> None:
+        """A protocol stage began: stored, and the phase it ends summarized once stored."""
+        stage = ev.stage
+        before = session.stage
+        session.stage = stage
+        try:
+            await asyncio.to_thread(
+                record_stage, self.store, session.recorder, session.db_id, stage
+            )
+        except (StoreValueError, ConflictError) as exc:
+            log.warning("session %s: stage not stored (%s)", session.db_id, exc)
+            return
+        if stage.segment == 0 and before is not None and before.phase != stage.phase:
+            task = asyncio.create_task(self._summarize_when_stored(session, before.phase, stage))
+            self._later.add(task)
+            task.add_done_callback(self._later.discard)
+
+    async def _summarize_when_stored(self, session: LiveSession, position: int, nxt: Any) -> None:
+        """Summarize phase ``position`` once the telemetry up to ``nxt.start`` is stored (or
+        the session has ended: then :meth:`finish` summarizes it)."""
+        dt = session.cfg.dt
+        while not session.ended.is_set():
+            stored = session.recorder.stored_until
+            if stored is not None and stored >= nxt.start - 1.5 * dt:
+                break
+            await asyncio.sleep(0.2)
+        else:
+            return
+        try:
+            await asyncio.to_thread(summarize_phases, self.store, session.db_id, [position])
+        except Exception:  # a summary is derived data: recomputed when next asked for
+            log.exception("session %s: phase %s not summarized", session.db_id, position)
 
     def _note(self, session: LiveSession, ev: LimitHit | EStopped | Faulted) -> None:
         """A limit hit, an e-stop or a fault: an event of the session, at its session time."""
@@ -213,7 +257,24 @@ class Pump:
         if record is not None and status == "completed" and record.converged and record.optimum_w:
             with contextlib.suppress(ConflictError):
                 await asyncio.to_thread(self.store.setpoints.from_session, session.db_id)
-        session.ended.set()
-        self.hub.publish_event(
-            {"type": "session_finished", "session_id": session.db_id, "status": status}
-        )
+        try:
+            await self._final_phases(session)
+            self.hub.publish_event(
+                {"type": "session_finished", "session_id": session.db_id, "status": status}
+            )
+        finally:  # (a shutdown waits for this: the live clients have seen the end by then)
+            session.ended.set()
+
+    async def _final_phases(self, session: LiveSession) -> None:
+        """The session has ended: its open phase ends with its data; every phase summarized."""
+
+        def final() -> None:
+            span = self.store.telemetry.span(session.db_id)
+            end = 0.0 if span.t1 is None else span.t1 + session.cfg.dt
+            self.store.phases.close_open(session.db_id, end)
+            summarize_phases(self.store, session.db_id)
+
+        try:
+            await asyncio.to_thread(final)
+        except Exception:
+            log.exception("session %s: phases not summarized", session.db_id)

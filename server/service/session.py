@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sessions.config import SessionConfig
+from sessions.protocol.stage import Stage
 from sessions.store import SessionRecorder
 from sessions.worker import Event
 
@@ -23,6 +24,7 @@ class ActiveSession:
     cfg: SessionConfig
     target: float | None = None
     done: bool = False
+    stage: Stage | None = None
 
 
 @dataclass(eq=False)
@@ -39,6 +41,7 @@ class LiveSession:
     done: bool = False
     evaluations: int = 0
     last_row: np.ndarray | None = None
+    stage: Stage | None = None  # the protocol stage running now
     # Ring rows read before the worker's SessionStarted event was: the loop may run a few
     # periods before the pump sees the event; they are recorded once it does.
     early: list[np.ndarray] = field(default_factory=list)
@@ -54,4 +57,4 @@ class LiveSession:
         return getattr(ev, "session_id", None) == self.tag
 
     def snapshot(self) -> ActiveSession:
-        return ActiveSession(self.db_id, self.user_id, self.cfg, self.target, self.done)
+        return ActiveSession(self.db_id, self.user_id, self.cfg, self.target, self.done, self.stage)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import contextlib
 import enum
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from sessions.config import SessionConfig
 from sessions.machine.spec import check_controller
@@ -70,6 +70,13 @@ class Machine:
         self.keepalive: Callable[[], None] = _nothing
         self.max_torque = 0.0
         self.last_command = 0.0
+        self.cues: Any = None
+
+    def follow(self, cues: Any) -> None:
+        """The session's cues to the person (``effort``, 0 … 1: :mod:`sessions.protocol.cues`),
+        before :meth:`arm`: a simulated person follows them; a real one reads them on the
+        dashboard, so hardware ignores them."""
+        self.cues = cues
 
     # -- lifecycle ---------------------------------------------------------------------
     def connect(self) -> None:

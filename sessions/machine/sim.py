@@ -3,7 +3,9 @@
 The worker paces the cycles in real time; the plant advances exactly one loop period per
 ``write`` (zero-order hold of u, as a drive applies a setpoint), so a session on this backend
 is the same computation as :func:`sessions.simulation.run_simulation` with the same config,
-step for step, whatever the scheduling jitter. The handle has a torque sensor: ``read``
+step for step, whatever the scheduling jitter. The simulated person follows the session's cues
+(:meth:`Machine.follow`): relaxes in a rest, and at the end of a session once the handle is
+brought to rest. The handle has a torque sensor: ``read``
 returns the user torque at the current state, so controller A (7) works here.
 
 A :class:`sessions.machine.spec.SimFault` makes the simulator misbehave from a session time
@@ -21,6 +23,7 @@ from sessions.machine.base import Machine
 from sessions.machine.spec import SimFault
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
+from sessions.protocol.cues import CuedPerson
 from sessions.truth import Truth
 
 HUGE_TORQUE = 1e308  # N·m: finite, and every product the loop forms with it overflows
@@ -33,7 +36,7 @@ class SimMachine(Machine):
     def __init__(self, fault: SimFault | None = None) -> None:
         super().__init__()
         self.plant: Plant | None = None
-        self.user: SimulatedUser | None = None
+        self.user: SimulatedUser | CuedPerson | None = None
         self.dt = 0.0
         self.fault = fault
         self.steps = 0  # periods written this session
@@ -44,7 +47,9 @@ class SimMachine(Machine):
 
     def _arm(self, cfg: SessionConfig) -> None:
         self.dt = cfg.dt
-        self.user = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+        person = SimulatedUser(cfg.user, cfg.dt, cfg.seed)
+        cues = self.cues
+        self.user = person if cues is None else CuedPerson(person, cues, cfg.dt)
         self.plant = Plant(cfg.machine.inertia)
         self.steps = 0
         self.fault_step = -1 if self.fault is None else round(self.fault.at / cfg.dt)

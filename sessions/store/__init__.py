@@ -19,16 +19,22 @@ from sessions.store.records import (
     EvaluationRecord,
     EventRecord,
     Page,
+    PhaseRecord,
+    PreferencesRecord,
+    ProgressPoint,
+    ProgressRecord,
     Role,
     SessionDetail,
     SessionRecord,
     SetpointRecord,
     TelemetryData,
     TelemetrySpan,
+    TemplateRecord,
     TokenRecord,
     UserRecord,
 )
 from sessions.store.store import Store, open_server_store, open_store
+from sessions.store.templates import ForbiddenError
 from sessions.store.users import UNSET
 
 __all__ = [
@@ -39,8 +45,13 @@ __all__ = [
     "ConflictError",
     "EvaluationRecord",
     "EventRecord",
+    "ForbiddenError",
     "NotFoundError",
     "Page",
+    "PhaseRecord",
+    "PreferencesRecord",
+    "ProgressPoint",
+    "ProgressRecord",
     "Role",
     "SessionDetail",
     "SessionRecord",
@@ -51,6 +62,7 @@ __all__ = [
     "StoreValueError",
     "TelemetryData",
     "TelemetrySpan",
+    "TemplateRecord",
     "TokenRecord",
     "UserRecord",
     "database_url",

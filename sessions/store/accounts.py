@@ -9,14 +9,14 @@ from typing import Any
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.exc import IntegrityError
 
 from sessions.codes import ROLES, Role
 from sessions.store import validate as v
 from sessions.store.database import Database
 from sessions.store.errors import ConflictError, NotFoundError, StoreValueError
-from sessions.store.models import Account
+from sessions.store.models import Account, ProtocolTemplate
 from sessions.store.passwords import check_password
 from sessions.store.records import AccountRecord
 
@@ -131,11 +131,17 @@ class AccountRepository:
         return record
 
     def delete(self, account_id: int) -> None:
-        """Remove an account; the sessions it started stay, with no starter."""
+        """Remove an account; the sessions it started stay, with no starter, and so do its
+        shared protocol templates; its private templates go with it."""
         with self._db.session(write=True) as s:
             row = s.get(Account, account_id)
             if row is None:
                 raise NotFoundError("account", account_id)
+            s.execute(
+                delete(ProtocolTemplate).where(
+                    ProtocolTemplate.account_id == account_id, ProtocolTemplate.shared.is_(False)
+                )
+            )
             s.delete(row)
 
     def _verify(self, digest: str, password: str) -> bool:

@@ -5,7 +5,9 @@ Times of day are UTC (``UTCDateTime``); times within a session (``t``, ``t0``, `
 seconds since the session started, like the ``t`` telemetry channel. Enumerations are
 strings with a CHECK constraint (portable, and a new value is a one-line migration).
 Deleting a user deletes their sessions and setpoints; deleting a session deletes its
-evaluations, telemetry and events; deleting an account keeps its sessions (started_by NULL).
+evaluations, telemetry, events and phases; deleting an account keeps its sessions (started_by
+NULL) and its shared protocol templates (no owner), and deletes its private templates and its
+preferences.
 """
 
 from __future__ import annotations
@@ -28,11 +30,13 @@ from sqlalchemy import (
     String,
     Text,
     TypeDecorator,
+    UniqueConstraint,
 )
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
-from sessions.codes import BOUNDS, ROLES, STATUSES, TOKEN_KINDS
+from sessions.codes import BOUNDS, PHASE_KINDS, ROLES, STATUSES, TOKEN_KINDS
+from sessions.units import VELOCITY_UNITS
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -241,3 +245,61 @@ class AuthToken(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     expires_at: Mapped[datetime] = mapped_column(UTCDateTime)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+class SessionPhase(Base):
+    """One phase of a session's protocol: when it ran (session seconds; ``t_end`` NULL while it
+    runs) and its summary (NULL until it has ended); ``detail`` holds its stages, its work
+    intervals (train) and its velocity-spectrum fit (profile)."""
+
+    __tablename__ = "session_phases"
+    __table_args__ = (
+        CheckConstraint(_in("kind", PHASE_KINDS), name="kind"),
+        UniqueConstraint("session_id", "position"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id", ondelete="CASCADE"))
+    position: Mapped[int] = mapped_column(Integer)  # index in the protocol (the stop: after)
+    kind: Mapped[str] = mapped_column(String(16))
+    name: Mapped[str] = mapped_column(String(100))
+    t_start: Mapped[float] = mapped_column(Double)
+    t_end: Mapped[float | None] = mapped_column(Double)
+    planned_end: Mapped[float | None] = mapped_column(Double)
+    mean_power: Mapped[float | None] = mapped_column(Double)
+    peak_power: Mapped[float | None] = mapped_column(Double)
+    work: Mapped[float | None] = mapped_column(Double)
+    mean_w: Mapped[float | None] = mapped_column(Double)
+    optimum_w: Mapped[float | None] = mapped_column(Double)
+    detail: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class ProtocolTemplate(Base):
+    """A named protocol a trainer keeps: private to its owner, or shared with every account."""
+
+    __tablename__ = "protocol_templates"
+    __table_args__ = (Index(None, "shared", "name"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(100))
+    description: Mapped[str] = mapped_column(Text, default="")
+    protocol: Mapped[dict[str, Any]] = mapped_column(JSON)  # a sessions.protocol.config.Protocol
+    account_id: Mapped[int | None] = mapped_column(
+        ForeignKey("accounts.id", ondelete="SET NULL"), index=True
+    )
+    shared: Mapped[bool] = mapped_column(Boolean, default=False)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class AccountPreferences(Base):
+    """How an account likes to read numbers (the API itself stays SI)."""
+
+    __tablename__ = "account_preferences"
+    __table_args__ = (CheckConstraint(_in("velocity_unit", VELOCITY_UNITS), name="velocity_unit"),)
+
+    account_id: Mapped[int] = mapped_column(
+        ForeignKey("accounts.id", ondelete="CASCADE"), primary_key=True
+    )
+    velocity_unit: Mapped[str] = mapped_column(String(8), default="rpm")
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -10,10 +10,11 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from sessions.codes import Bound, Role, SessionStatus, TokenKind
+from sessions.codes import Bound, PhaseKindName, Role, SessionStatus, TokenKind
 from sessions.config import SessionConfig
 from sessions.summary import SessionSummary
 from sessions.telemetry import INDEX
+from sessions.units import VelocityUnit
 
 T = TypeVar("T")
 
@@ -110,6 +111,72 @@ class SessionRecord(Record):
         return SessionConfig.model_validate(self.config)
 
 
+class PhaseRecord(Record):
+    """One phase of a session (session seconds; the summary None until the phase has ended)."""
+
+    id: int
+    session_id: int
+    position: int
+    kind: PhaseKindName
+    name: str
+    t_start: float
+    t_end: float | None
+    planned_end: float | None
+    mean_power: float | None
+    peak_power: float | None
+    work: float | None
+    mean_w: float | None
+    optimum_w: float | None
+    detail: dict[str, Any]
+
+
+class TemplateRecord(Record):
+    """A protocol template: ``account_id`` its owner (None: the owner's account is gone)."""
+
+    id: int
+    name: str
+    description: str
+    protocol: dict[str, Any]
+    account_id: int | None
+    shared: bool
+    created_at: datetime
+    updated_at: datetime
+
+
+class PreferencesRecord(Record):
+    account_id: int
+    velocity_unit: VelocityUnit
+    updated_at: datetime | None = None
+
+
+class ProgressPoint(Record):
+    """One session on a user's progress chart (SI units)."""
+
+    session_id: int
+    started_at: datetime
+    status: SessionStatus
+    protocol: str  # the protocol's name ("" without one)
+    seeker: str
+    converged: bool
+    at_bound: Bound | None
+    optimum_w: float | None  # the optimum at the end (what was stored), rad/s
+    optimum_p: float | None
+    optimum_t: float | None
+    wd_converged: float | None  # the optimum first found, and when
+    t_converged: float | None
+    mean_power: float
+    peak_power: float
+    work: float
+    duration: float
+    profiles: list[dict[str, Any]] = []  # the profile phases' fits: tau0, wmax, pmax, w_opt, a
+
+
+class ProgressRecord(Record):
+    user_id: int
+    body_mass_kg: float | None
+    sessions: list[ProgressPoint]
+
+
 class EvaluationRecord(Record):
     """A measured candidate; ``stderr`` is None where the seeker had no estimate (∞)."""
 
@@ -142,11 +209,12 @@ class SetpointRecord(Record):
 
 
 class SessionDetail(Record):
-    """One session's summary with everything its seeker measured and every event."""
+    """One session's summary with everything its seeker measured, every event and its phases."""
 
     session: SessionRecord
     evaluations: list[EvaluationRecord]
     events: list[EventRecord]
+    phases: list[PhaseRecord] = []
 
 
 class Page(BaseModel, Generic[T]):

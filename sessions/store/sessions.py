@@ -26,6 +26,7 @@ from sessions.store.models import (
     Event,
     ExerciseSession,
     SeekerEvaluation,
+    SessionPhase,
     User,
     utcnow,
 )
@@ -33,6 +34,7 @@ from sessions.store.records import (
     EvaluationRecord,
     EventRecord,
     Page,
+    PhaseRecord,
     SessionDetail,
     SessionRecord,
 )
@@ -210,7 +212,7 @@ class SessionRepository:
             return self._events(s, session_id, kind)
 
     def detail(self, session_id: int) -> SessionDetail:
-        """The session's summary, its evaluations and its events, read in one snapshot."""
+        """The session's summary, evaluations, events and phases, read in one snapshot."""
         with self._db.session(write=False) as s:
             row = s.get(ExerciseSession, session_id)
             if row is None:
@@ -219,6 +221,14 @@ class SessionRepository:
                 session=SessionRecord.model_validate(row),
                 evaluations=self._evaluations(s, session_id),
                 events=self._events(s, session_id, None),
+                phases=[
+                    PhaseRecord.model_validate(r)
+                    for r in s.scalars(
+                        select(SessionPhase)
+                        .where(SessionPhase.session_id == session_id)
+                        .order_by(SessionPhase.position)
+                    )
+                ],
             )
 
     def add_evaluation(self, session_id: int, evaluation: Any) -> EvaluationRecord:

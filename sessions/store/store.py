@@ -13,9 +13,13 @@ from sessions.store import migrate
 from sessions.store.accounts import AccountRepository
 from sessions.store.database import Database, database_url, display_url
 from sessions.store.errors import StoreError
+from sessions.store.phases import PhaseRepository
+from sessions.store.preferences import PreferencesRepository
+from sessions.store.progress import ProgressRepository
 from sessions.store.recorder import SessionRecorder
 from sessions.store.sessions import RESTART_REASON, SessionRepository
 from sessions.store.setpoints import SetpointRepository
+from sessions.store.templates import TemplateRepository
 from sessions.store.timeseries import TelemetryRepository
 from sessions.store.tokens import TokenRepository
 from sessions.store.users import UserRepository
@@ -24,9 +28,10 @@ log = logging.getLogger(__name__)
 
 
 class Store:
-    """Accounts, users, sessions (with evaluations and events), setpoints and telemetry in
-    one database. Thread-safe; every call is its own short transaction unless made inside
-    :meth:`transaction`. Returns plain records, never ORM objects."""
+    """Accounts (and their preferences), users, sessions (with evaluations, events and
+    phases), setpoints, telemetry and protocol templates in one database. Thread-safe; every
+    call is its own short transaction unless made inside :meth:`transaction`. Returns plain
+    records, never ORM objects."""
 
     def __init__(self, url: str | None = None, *, password_hasher: PasswordHasher | None = None):
         self.url = database_url(url)
@@ -37,6 +42,10 @@ class Store:
         self.setpoints = SetpointRepository(self._db)
         self.telemetry = TelemetryRepository(self._db)
         self.tokens = TokenRepository(self._db)
+        self.phases = PhaseRepository(self._db)
+        self.templates = TemplateRepository(self._db)
+        self.preferences = PreferencesRepository(self._db)
+        self.progress = ProgressRepository(self._db)
 
     @property
     def dialect(self) -> str:

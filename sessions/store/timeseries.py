@@ -83,6 +83,13 @@ def chunk_row(session_id: int, seq: int, cols: np.ndarray) -> dict[str, Any]:
     }
 
 
+INDEX_OF = {name: i for i, name in enumerate(NAMES)}
+
+
+def _unknown(name: str) -> int:
+    raise StoreValueError("channels", f"unknown channel {name!r} (one of {', '.join(NAMES)})")
+
+
 def _window(start: Any, end: Any) -> tuple[float | None, float | None]:
     lo = None if start is None else v.number("start", start)
     hi = None if end is None else v.number("end", end)
@@ -183,6 +190,31 @@ class TelemetryRepository:
         with self._db.session(write=False) as s:
             _require_session(s, session_id)
         return self._chunks(session_id, lo, hi, batch)
+
+    def columns(
+        self,
+        session_id: int,
+        names: tuple[str, ...],
+        *,
+        start: float | None = None,
+        end: float | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Only the channels ``names`` at full rate (``start ≤ t ≤ end``), read chunk batch
+        by chunk batch: an hour at 1 kHz of five channels is 144 MB, not all ten's 288 MB."""
+        rows = [INDEX_OF[n] if n in INDEX_OF else _unknown(n) for n in names]
+        lo, hi = _window(start, end)
+        with self._db.session(write=False) as s:
+            _require_session(s, session_id)
+            bound = s.scalar(
+                select(func.coalesce(func.sum(_C.n), 0)).where(*_where(session_id, lo, hi))
+            )
+        out = np.empty((len(rows), int(bound or 0)))
+        k = 0
+        for cols in self._chunks(session_id, lo, hi, 64):
+            m = min(cols.shape[1], out.shape[1] - k)  # (a chunk added since: not read)
+            out[:, k : k + m] = cols[rows, :m]
+            k += m
+        return {n: out[i, :k] for i, n in enumerate(names)}
 
     def export_csv(
         self, session_id: int, *, start: float | None = None, end: float | None = None

@@ -10,7 +10,8 @@
   ramp), **supervise** (limits, passivity, duration: :mod:`sessions.worker.supervisor`),
   **write** the torque;
 - **publish**: the record into the shared-memory ring, the heartbeat, the timing; events
-  (a seeker evaluation, limit hits, a Timing a second) go out over the channel.
+  (a seeker evaluation, a protocol stage begun, limit hits, a Timing a second) go out over
+  the channel.
 
 A machine fault at read or write ends the session ``faulted`` (the backend has zeroed the
 torque).
@@ -42,7 +43,7 @@ from sessions.codes import FLAG_CATCHUP, FLAG_FAULT, FLAG_STOPPING, STOPPING
 from sessions.config import SessionConfig
 from sessions.loop import Loop
 from sessions.machine import MachineError
-from sessions.worker.messages import CandidateMeasured, EStop, Timing
+from sessions.worker.messages import CandidateMeasured, EStop, StageBegun, Timing
 from sessions.worker.pacer import Pacer, TimingRecorder
 from sessions.worker.ring import H_CYCLES, H_ESTOP, H_HEARTBEAT
 from sessions.worker.supervisor import End, Supervisor
@@ -96,6 +97,7 @@ class SessionCycle:
         self.row = loop.row  # the last record's engine channels
         self.phase = 0.0
         self.flags = 0
+        self.stage = float(loop.stage)
         self.period = loop.dt
         self.catch_up_max = opt.catch_up_max if host.machine.free_running else -1.0
         self.prev = (loop.row[1], loop.row[2], math.nan)  # the last measurement (q, w, τ)
@@ -115,6 +117,8 @@ class SessionCycle:
         catching = self.catch_up_max >= 0.0  # a free-running plant: missed periods are real
         period = self.period
         next_timing = mono() + self.timing_interval
+        for stage in self.loop.reference.log:  # the first stage, begun with the loop
+            host.emit(StageBegun(mono(), self.sid, stage))
         pacer.start()
         while True:
             now, late = pacer.wait()
@@ -145,7 +149,10 @@ class SessionCycle:
                 end = sup.loop_error(str(exc), exc.measured, mono())
                 return self.last_record(end, FLAG_FAULT, late, now)
             self.prev = (q, w, tau)
-            rwrite((*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session))
+            rwrite(
+                (*self.row, u, self.phase, float(self.flags), late * 1e6, now, self.session,
+                 self.stage)
+            )  # fmt: skip
             hdr[H_HEARTBEAT] = mono_ns()
             hdr[H_CYCLES] = cycles
             record(late, mono() - now)
@@ -199,8 +206,12 @@ class SessionCycle:
             if s - s != 0.0:  # one of them is NaN or ±inf (or their sum overflowed)
                 check_loop_values(u, row)
             self.phase = float(loop.seeker.phase)
+            self.stage = float(loop.stage)
             if loop.evaluation is not None:
                 self.evaluated(now)
+            stage = loop.reference.changed
+            if stage is not None:
+                self.host.emit(StageBegun(now, self.sid, stage))
             self.flags = loop.flags | sup.check(u, w, now)
             return u
         u = ramp.command(w)
@@ -229,7 +240,7 @@ class SessionCycle:
             self.update(qp + (q - qp) * f, wp + (w - wp) * f, tp + (tau - tp) * f, now, held)
             at = first + i * period
             flags = float(self.flags | FLAG_CATCHUP)
-            rwrite((*self.row, held, self.phase, flags, (now - at) * 1e6, at, sid))
+            rwrite((*self.row, held, self.phase, flags, (now - at) * 1e6, at, sid, self.stage))
 
     def evaluated(self, now: float) -> None:
         """The seeker has just measured a candidate: tell the parent."""
@@ -248,7 +259,7 @@ class SessionCycle:
         row = self.row
         self.host.ring.write(
             (row[0] + self.loop.dt, *row[1:5], 0.0, *row[6:], 0.0, float(STOPPING), float(flags),
-             late * 1e6, now, self.session)
+             late * 1e6, now, self.session, self.stage)
         )  # fmt: skip
         return end
 

@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Literal
 
 from sessions.codes import EndStatus, WorkerStateName
 from sessions.config import SessionConfig
+from sessions.protocol.stage import Stage
 from sessions.summary import SessionSummary
 
 
@@ -141,6 +142,15 @@ class CandidateMeasured(Event):
 
 
 @dataclass(frozen=True)
+class StageBegun(Event):
+    """A segment of the session's protocol has begun (``stage.segment == 0``: a new phase)."""
+
+    kind: ClassVar[str] = "stage"
+    session_id: str
+    stage: Stage
+
+
+@dataclass(frozen=True)
 class LimitHit(Event):
     kind: ClassVar[str] = "limit"
     session_id: str
@@ -220,6 +230,8 @@ class WorkerLost(Event):
 def _plain(value: Any) -> Any:
     if isinstance(value, SessionSummary):
         return value.model_dump()
+    if isinstance(value, Stage):
+        return value.to_dict()
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
     if isinstance(value, tuple | list):

@@ -264,6 +264,7 @@ class WorkerProcess:
         """Arm the machine and start the loop at its state; a refusal or fault is reported."""
         machine = self.machine
         try:
+            machine.follow(loop.reference)  # the protocol's cues (a simulated person follows)
             machine.arm(cfg)
             q0, w0, _ = machine.read()
         except ValueError as exc:

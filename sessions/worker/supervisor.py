@@ -15,8 +15,16 @@ What ends a session, and how (:class:`End`):
   zero torque at once, the session ends ``aborted`` (``stopped`` for a shutdown).
 - **velocity over the limit** and **passivity breach** (W < −c²): a controlled stop, the
   session ends ``aborted``.
-- **duration reached**: a controlled stop, ``completed``. **Stop** (command): controlled,
-  ``stopped`` (or at once with ``immediate``, or when a stop is already under way).
+- **duration reached** or **the protocol over**: a controlled stop, ``completed``. **Stop**
+  (command): controlled, ``stopped`` (or at once with ``immediate``, or when a stop is
+  already under way).
+
+A controlled stop that the session asks for (the duration reached, the operator's stop) first
+brings the handle to rest: the loop's reference winds down to zero velocity under control
+(the protocol's closing stop, :meth:`sessions.loop.Loop.wind_down`), the person asked to relax;
+once the handle is still (``Loop.finished``; a protocol that ends with its cool-down gets
+there by itself) the torque is ramped out. Never a disarm at speed. The session's result is
+frozen when the torque ramp begins: the wind-down is part of the session (its closing phase).
 
 The controlled stop (:class:`StopRamp`) is a stop category 1, after IEC 60204-1: the motor
 stays under control while its torque is taken away, then the drive is disabled.
@@ -128,6 +136,7 @@ class Supervisor:
 
     __slots__ = (
         "host", "loop", "sid", "n_steps", "ramp_s", "ramp", "stop_end", "summary", "prev_flags",
+        "ending",
     )  # fmt: skip
 
     def __init__(self, host: Host, loop: Loop, sid: str, n_steps: int, ramp_s: float) -> None:
@@ -140,6 +149,7 @@ class Supervisor:
         self.stop_end: End | None = None
         self.summary: SessionSummary | None = None
         self.prev_flags = 0
+        self.ending: End | None = None  # winding down to rest, then this end
 
     def freeze(self, status: EndStatus, reason: str) -> SessionSummary:
         """The session's summary, computed the first time only. If the loop's figures are
@@ -162,10 +172,10 @@ class Supervisor:
             host.emit(EStopped(zero_at, self.sid, zero_at))
             return End("stopped", "e-stop", STATE_ESTOPPED), FLAG_ESTOP
         if isinstance(cmd, Stop):
-            if cmd.immediate or self.ramp is not None:
+            if cmd.immediate or self.ramp is not None or self.ending is not None:
                 host.machine.zero()
                 return End("stopped", cmd.reason or "stopped at once by the operator"), 0
-            self.begin_stop("stopped", cmd.reason or "stopped by the operator")
+            self.wind_down("stopped", cmd.reason or "stopped by the operator")
         elif isinstance(cmd, Shutdown):
             host.machine.zero()
             host.shutdown = True
@@ -220,8 +230,11 @@ class Supervisor:
                 "aborted", f"passivity breached: W = {p.work:.3g} J < -c² = {-p.c2:g} J", u
             )
             return FLAG_PASSIVITY
-        elif loop.k >= self.n_steps:
-            self.begin_stop("completed", "duration reached", u)
+        elif loop.finished:
+            end = self.ending or End("completed", "protocol finished")
+            self.begin_stop(end.status, end.reason, u)
+        elif loop.k >= self.n_steps and self.ending is None:
+            self.wind_down("completed", "duration reached")
         return 0
 
     def _limit_events(self, lf: int, u: float, w: float, now: float) -> None:
@@ -232,6 +245,13 @@ class Supervisor:
             emit(LimitHit(now, self.sid, t, "velocity", abs(w)))
         self.prev_flags = lf
 
+    def wind_down(self, status: EndStatus, reason: str) -> None:
+        """Bring the handle to rest; the torque ramp follows once it is still (:meth:`check`)."""
+        self.ending = End(status, reason)
+        self.host.enter_stopping()
+        self.host.emit(Stopping(time.monotonic(), self.sid, reason))
+        self.loop.wind_down()
+
     def begin_stop(self, status: EndStatus, reason: str, u0: float | None = None) -> None:
         """Freeze the session's result and start the controlled stop (once)."""
         if self.ramp is not None:
@@ -240,7 +260,8 @@ class Supervisor:
         self.stop_end = End(status, reason)
         host = self.host
         host.enter_stopping()
-        host.emit(Stopping(time.monotonic(), self.sid, reason))
+        if self.ending is None:  # (a wind-down has said so already)
+            host.emit(Stopping(time.monotonic(), self.sid, reason))
         u = host.machine.last_command if u0 is None else u0
         loop = self.loop
         self.ramp = StopRamp(u, self.ramp_s, loop.dt, loop.limits)

@@ -51,10 +51,11 @@ def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:
     # the search's figures (issue 14): inside the bracket, first converged, scored on the
     # simulated person's true power
     lo, _, hi = s["config"]["seeker"]["bracket"]
-    assert s["at_bound"] is None and 0.0 < s["t_converged"] < s["optimum_t"] == s["duration"]
+    assert s["at_bound"] is None and 0.0 < s["t_converged"] < s["optimum_t"] <= s["duration"]
     assert lo <= s["target_min"] <= s["wd_converged"] <= s["target_max"] <= hi
     assert 0.0 < s["regret"] < 0.2
-    assert s["duration"] == pytest.approx(30.0, abs=0.01)
+    # the duration, then the wind-down to rest (the closing stop phase)
+    assert 30.0 < s["duration"] < 30.0 + 8.0
     assert len(body["evaluations"]) == s["evaluation_count"] >= 3
     with server.client("viewer") as c:
         sp = c.get(f"/api/v1/users/{user['id']}/setpoints").json()
@@ -69,7 +70,8 @@ def test_a_session_from_start_to_stored_setpoint(server: ServerProcess) -> None:
         rows = len(lines) - 1
         dec = c.get(f"/api/v1/sessions/{sid}/telemetry", params={"points": 500}).json()
         assert rows == dec["samples"]
-        assert 30_000 <= rows <= 30_000 + 600  # the session plus its torque ramp-out
+        # the session, its wind-down to rest, then the torque ramp-out
+        assert round(s["duration"] * 1000) <= rows <= round(s["duration"] * 1000) + 600
         assert dec["decimated"] and len(dec["channels"]["w"]) <= 1000
     # the next session's bracket starts around the stored optimum
     with server.client("trainer") as c:

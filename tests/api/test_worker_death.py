@@ -3,10 +3,11 @@ ends ``aborted`` with its data, the machine shows the fault, e-stop and stop ans
 e-stop never fails; there is no session to stop), reset starts a new worker and the next
 session completes.
 
-The worker dies through the simulator's fault injection, two seconds into every session
+The worker dies through the simulator's fault injection, eight seconds into every session
 (``ERGOSEEK_SIM_FAULT__*``): it aborts on its own (SIGABRT, no goodbye) or exits the way an
-unhandled bug makes it exit. A session shorter than that (with its 0.5 s stop ramp) is not
-touched, so the one after the reset completes. (SIGKILL: tests/api/test_crash.py.)
+unhandled bug makes it exit. A session shorter than that (1 s, then its wind-down to rest and
+its 0.5 s stop ramp) is not touched, so the one after the reset completes.
+(SIGKILL: tests/api/test_crash.py.)
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import pytest
 
 from testing.server import start_server
 
-AT = 2.0  # s into a session the worker dies
+AT = 8.0  # s into a session the worker dies (after the 1 s one, its ~4 s wind-down, its ramp)
 
 
 @pytest.mark.parametrize(
@@ -32,7 +33,7 @@ def test_the_server_recovers_from_its_worker_dying(tmp_path: Path, kind: str, wo
         session = body["session"]
         assert session["status"] == "aborted", session
         assert session["abort_reason"].startswith(words), session["abort_reason"]
-        # its data is kept: the two seconds it ran (every period, none lost)
+        # its data is kept: the eight seconds it ran (every period, none lost)
         tel = c.get(f"/api/v1/sessions/{sid}/telemetry", params={"points": 100_000}).json()
         assert tel["samples"] == round(AT * 1000)
         machine = c.get("/api/v1/machine").json()

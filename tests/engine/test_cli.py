@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -91,3 +92,46 @@ def test_reproduce_writes_figures_summary_and_csv(tmp_path: Path) -> None:
     summary = json.loads((tmp_path / "exp1.json").read_text())
     assert summary["config"]["controller"]["ks"] == 1.0  # the paper's gains
     assert summary["w_star"] == pytest.approx(3.0)
+
+
+PROTOCOL = """
+rate = 500.0
+seed = 3
+[user]
+kind = "linear"
+tau0 = 2.0
+wmax = 6.0
+[seeker]
+kind = "parabolic"
+bracket = [1.0, 2.5, 4.0]
+objective = "surrogate"
+[[protocol.phases]]
+kind = "warmup"
+duration = 4.0
+velocity = 2.0
+[[protocol.phases]]
+kind = "train"
+intervals = 1
+work = 4.0
+rest = 3.0
+countdown = 1.0
+velocity = 3.0
+[[protocol.phases]]
+kind = "cooldown"
+duration = 3.0
+"""
+
+
+def test_simulate_reports_each_protocol_phase(scenario_file: Callable[..., Path]) -> None:
+    proc = ergoseek("simulate", str(scenario_file(PROTOCOL)), "--json")
+    assert proc.returncode == 0, proc.stderr
+    phases = json.loads(proc.stdout)["phases"]
+    assert [p["kind"] for p in phases] == ["warmup", "train", "cooldown"]
+    assert [p["start"] for p in phases] == pytest.approx([0.0, 4.0, 12.0])  # 4 s; 1 + 4 + 3 s
+    for before, after in itertools.pairwise(phases):
+        assert before["end"] == pytest.approx(after["start"])
+    warm = phases[0]  # a linear user at 2 rad/s: τ = 2 (1 − 2/6), P = 4/3 W once there
+    assert warm["peak_power"] == pytest.approx(4.0 / 3.0, rel=0.05)
+    assert all(p["work"] >= 0.0 and p["mean_power"] <= p["peak_power"] for p in phases)
+    text = ergoseek("simulate", str(scenario_file(PROTOCOL, "p.toml"))).stdout
+    assert "phase      train 2" in text

@@ -20,7 +20,7 @@ from testing.store import FAST_HASHER
 
 TABLES = {
     "accounts", "users", "sessions", "seeker_evaluations", "setpoints", "telemetry_chunks",
-    "events", "auth_tokens",
+    "events", "auth_tokens", "session_phases", "protocol_templates", "account_preferences",
 }  # fmt: skip
 
 
@@ -44,7 +44,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         with pytest.raises(StoreError, match="db upgrade"):
             open_store(db_url, upgrade=False)
         st.upgrade()
-        assert st.current_revision() == head_revision() == "0003"
+        assert st.current_revision() == head_revision() == "0004"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"}
         assert diff == []
@@ -53,7 +53,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         assert st.current_revision() is None
         assert _schema(db_url)[0] <= {"alembic_version"}
         st.upgrade()
-        assert st.current_revision() == "0003"
+        assert st.current_revision() == "0004"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"} and diff == []
         again = st.users.create("after")
@@ -73,6 +73,7 @@ def test_migrations_ship_with_the_package() -> None:
         "0001_initial.py",
         "0002_auth_tokens_sim_profile.py",
         "0003_session_search.py",
+        "0004_protocols_phases_preferences.py",
     ]
     assert not list(Path(MIGRATIONS).rglob("alembic.ini"))
 
@@ -89,10 +90,10 @@ def test_db_command_upgrade_and_current(
         assert "revision none (empty)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
     out = capsys.readouterr().out
-    assert out.strip().endswith("revision 0003 (newest)")
+    assert out.strip().endswith("revision 0004 (newest)")
     monkeypatch.delenv("ERGOSEEK_DATABASE_URL")
     assert main(["db", "current", "--url", db_url]) == 0
-    assert "revision 0003 (newest)" in capsys.readouterr().out
+    assert "revision 0004 (newest)" in capsys.readouterr().out
 
 
 def test_upgrade_from_the_first_revision_keeps_the_data(db_url: str) -> None:
@@ -111,6 +112,60 @@ def test_upgrade_from_the_first_revision_keeps_the_data(db_url: str) -> None:
         assert ada.name == "Ada" and ada.sim_profile is None
         st.downgrade("0001")
         assert st.current_revision() == "0001"
+    finally:
+        st.close()
+
+
+def test_0003_and_0004_up_and_down_keep_the_sessions_before_them(db_url: str) -> None:
+    # a session stored at 0002 reads back at 0003 with the search's figures unknown (None);
+    # 0004 adds the workflow's tables and nothing to sessions; down to 0003 those tables go
+    # (the search's columns stay), down to 0002 the search's columns go, the session stays
+    st = Store(db_url, password_hasher=FAST_HASHER)
+    try:
+        st.upgrade("0002")
+        assert "session_phases" not in _schema(db_url)[0]
+        with st._db.session(write=True) as s:
+            s.execute(sa.text(
+                "INSERT INTO users (name, notes, created_at, updated_at) "
+                "VALUES ('Ada', '', CURRENT_TIMESTAMP, CURRENT_TIMESTAMP)"
+            ))  # fmt: skip
+        user = st.users.list().items[0]
+        with st._db.session(write=True) as s:
+            s.execute(
+                sa.text(
+                    "INSERT INTO sessions (user_id, backend, config, status, started_at, seeker,"
+                    " converged, mean_power, peak_power, work, duration, passivity_min,"
+                    " evaluation_count, optimum_w) VALUES (:u, 'sim', :c, 'completed',"
+                    " CURRENT_TIMESTAMP, 'brent', true, 1.5, 3.0, 90.0, 60.0, 0.0, 5, 3.1)"
+                ),
+                {"u": user.id, "c": '{"duration": 60.0}'},
+            )
+        st.upgrade("0003")
+        assert "session_phases" not in _schema(db_url)[0]
+        with st._db.session(write=False) as s:
+            row = s.execute(sa.text("SELECT optimum_w, at_bound, regret FROM sessions")).one()
+        assert tuple(row) == (3.1, None, None)
+        st.upgrade("0004")
+        (old,) = st.sessions.list().items
+        assert old.optimum_w == 3.1 and old.regret is None and old.at_bound is None
+        assert old.wd_converged is None and old.t_converged is None and old.optimum_t is None
+        assert st.sessions.detail(old.id).phases == []
+        account = st.accounts.create("coach", "a-long-password", "trainer")
+        st.templates.create(account.id, "t", {"phases": [{"kind": "seek"}]})
+        st.preferences.set(account.id, velocity_unit="rad/s")
+        st.downgrade("0003")
+        tables, _ = _schema(db_url)
+        assert not tables & {"session_phases", "protocol_templates", "account_preferences"}
+        with st._db.session(write=False) as s:
+            cols = {c["name"] for c in inspect(s.connection()).get_columns("sessions")}
+        assert {"regret", "at_bound", "optimum_t"} <= cols
+        st.downgrade("0002")
+        with st._db.session(write=False) as s:
+            cols = {c["name"] for c in inspect(s.connection()).get_columns("sessions")}
+            (optimum,) = s.execute(sa.text("SELECT optimum_w FROM sessions")).one()
+        assert "regret" not in cols and "at_bound" not in cols and optimum == 3.1
+        st.upgrade()
+        assert _schema(db_url)[1] == []
     finally:
         st.close()
 

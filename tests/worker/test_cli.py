@@ -46,7 +46,8 @@ def test_run_sim_json(quick):
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["status"] == "completed" and out["reason"] == "duration reached"
-    assert out["summary"]["duration"] == pytest.approx(1.0)
+    # the duration, then the wind-down to rest (a few seconds from ~3 rad/s)
+    assert 1.0 < out["summary"]["duration"] < 1.0 + 8.0
     assert out["timing"]["cycles"] >= 1000 and out["timing"]["rate_hz"] == 1000.0
 
 

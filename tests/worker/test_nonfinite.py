@@ -20,7 +20,7 @@ from sessions.worker import Worker, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, scenario
 
-AT = 1.0  # s: the fault's start
+AT = 3.0  # s: the fault's start (after all of the next session: 0.2 s, then its wind-down)
 
 
 def _run(kind: str, **cfg: object):

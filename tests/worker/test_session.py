@@ -18,6 +18,7 @@ from sessions.config import ScenarioError
 from sessions.loop import Loop
 from sessions.machine import MachineSpec
 from sessions.machine.sim import SimMachine
+from sessions.protocol.config import REST_VELOCITY, STOP_DECELERATION
 from sessions.simulation import run_simulation
 from sessions.summary import summarize
 from sessions.worker import COLUMNS, Worker, WorkerError, WorkerOptions
@@ -28,15 +29,21 @@ NCH = 10  # the engine's telemetry channels come first in a ring record
 
 
 def offline_summary(cfg):
+    """The worker's session offline: the duration, then the wind-down to rest."""
     m = SimMachine()
+    loop = Loop(cfg)
     m.connect()
+    m.follow(loop.reference)
     m.arm(cfg)
     m.activate()
-    loop = Loop(cfg, truth=m.truth())  # as the worker: the simulated person scores the regret
+    loop.attach_truth(m.truth())  # as the worker: the simulated person scores the regret
     loop.begin(0.0, 0.0)
-    for _ in range(round(cfg.duration * cfg.rate)):
+    n = round(cfg.duration * cfg.rate)
+    while not loop.finished:
         q, w, tau = m.read()
         m.write(loop.step(q, w, tau))
+        if loop.k == n:
+            loop.wind_down()
     return summarize(loop)
 
 
@@ -66,22 +73,44 @@ def test_live_session_is_the_offline_simulation(worker):
     assert worker.status().state == "idle" and worker.status().session_id is None
 
 
-def test_the_end_ramps_torque_out_and_never_drives(worker):
-    cfg = scenario(duration=1.0)
+def test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drives(worker):
+    # At the duration the handle turns at ~3 rad/s: the reference winds down to rest under
+    # control (never faster than the stop's deceleration), the person is asked to relax, and
+    # only once the handle is still is the torque ramped out, resisting only.
+    cfg = scenario(duration=3.0)
     reader = worker.open_reader()
     worker.start_session(cfg, "ramp")
     got = follow(worker, reader)
     reader.close()
     d = got.data
-    stop = d[d[:, INDEX["phase"]] < 0]
+    t, w, phase = d[:, INDEX["t"]], d[:, INDEX["w"]], d[:, INDEX["phase"]]
+    n = round(cfg.duration * cfg.rate)
+    assert w[n - 1] > 2.0  # moving when the duration was reached
+    # the wind-down, under the loop's control: period n still ran on the reference computed
+    # before the duration was found reached; the stop's reference drives from n + 1 on
+    wind = d[n + 1 :][phase[n + 1 :] >= 0]
+    stop = d[phase < 0]  # the torque ramp
+    assert len(wind) > 0 and np.all(wind[:, INDEX["stage"]] == 1)  # the closing stop phase
+    assert np.all(np.diff(wind[:, INDEX["wd"]]) <= 1e-12)  # the reference only slows
+    assert np.all(wind[:, INDEX["ad"]] >= -STOP_DECELERATION * (1 + 1e-6))
+    assert np.all(np.abs(stop[:, INDEX["w"]]) < REST_VELOCITY)  # at rest when torque goes
     opts = WorkerOptions()
     assert len(stop) == pytest.approx(opts.stop_ramp * cfg.rate, abs=2)
     assert np.all(stop[:, INDEX["flags"]].astype(int) & FLAG_STOPPING)
-    u, w = stop[:, INDEX["u_out"]], stop[:, INDEX["w"]]
-    assert np.all(u * w <= 0.0)  # the motor only resists during a stop
-    assert np.all(np.abs(np.diff(np.abs(u))) <= np.abs(d[1000 - 1, INDEX["u"]]) / 400)
+    u = stop[:, INDEX["u_out"]]
+    assert np.all(u * stop[:, INDEX["w"]] <= 0.0)  # the motor only resists during a stop
+    assert np.abs(u).max() < 0.05 * np.abs(d[n - 1, INDEX["u"]])  # the relaxed person's torque
     assert u[-1] == 0.0
     assert got.of("stopping")[0].reason == "duration reached"
+    stages = got.of("stage")
+    assert [(s.stage.kind, s.stage.role) for s in stages] == [
+        ("seek", "seek"),
+        ("stop", "stop"),
+        ("stop", "relax"),
+    ]
+    assert stages[1].stage.start == pytest.approx(cfg.duration + 1 / cfg.rate)  # period n + 1
+    assert got.end is not None
+    assert got.end.summary.duration == pytest.approx(t[-1] - len(stop) / 1e3, abs=2e-3)
 
 
 def test_operator_stop_ends_the_session_early(worker):
@@ -125,7 +154,7 @@ def test_events_as_an_async_stream(worker):
             d = ev.to_dict()
             assert d["kind"] == ev.kind
             if ev.kind == "session_ended":
-                assert d["summary"]["duration"] == pytest.approx(0.5)
+                assert 0.5 < d["summary"]["duration"] < 0.5 + 8.0  # and the wind-down
                 return kinds
         return kinds
 
