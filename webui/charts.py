@@ -41,6 +41,9 @@ LIVE = {name: i for i, name in enumerate(LIVE_COLUMNS)}
 _RECORD_COLS = np.array([RECORD_INDEX[name] for name in LIVE_COLUMNS])
 
 NUMBERS = {"time": False}
+# Minimum y spans: a steady signal's 1e-4 zigzag must not fill the chart (three identical
+# tick labels, "3.095", on a steady velocity). Units as charted.
+MIN_SPAN = {"velocity": 0.5, "torque": 0.5, "power": 1.0, "passivity": 1.0}
 AXIS_GREY = "#888"
 
 
@@ -121,6 +124,38 @@ def plottable(data: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     return (np.ascontiguousarray(data[0], dtype=np.float64), *map(lead_finite, data[1:]))
 
 
+def span_range(*ys: np.ndarray, min_span: float = 1.0) -> tuple[float, float]:
+    """A y range over the finite values of ``ys``, 5 % padded, at least ``min_span`` wide,
+    its ends on multiples of ``min_span / 4`` (so it moves only when the data leaves it)."""
+    finite = [y[np.isfinite(y)] for y in ys if len(y)]
+    values = np.concatenate(finite) if finite else np.zeros(0)
+    if not len(values):
+        return (0.0, float(min_span))
+    lo, hi = float(values.min()), float(values.max())
+    pad = 0.05 * (hi - lo)
+    lo, hi = lo - pad, hi + pad
+    if hi - lo < min_span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * min_span, mid + 0.5 * min_span
+    step = min_span / 4.0
+    return (float(np.floor(lo / step) * step), float(np.ceil(hi / step) * step))
+
+
+def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scale]:
+    """A time chart's scales with the y range of :func:`span_range`."""
+    return {
+        "x": up.Scale(time=False),
+        "y": up.Scale(auto=False, range=span_range(*ys, min_span=min_span)),
+    }
+
+
+def set_range(chart: viser.GuiUplotHandle, y_range: tuple[float, float]) -> None:
+    """Send a chart's y range only when it changed."""
+    if getattr(chart, "_ergoseek_range", None) != y_range:
+        chart._ergoseek_range = y_range  # type: ignore[attr-defined]
+        chart.scales = {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
+
+
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
     return up.Series(label=label, stroke=stroke, width=1.5, **extra)  # type: ignore[typeddict-item]
 
@@ -171,6 +206,8 @@ class LiveCharts:
 
     def show(self, window: LiveWindow) -> None:
         t, wd, w, u, tau, p, W = window.series("t", "wd", "w", "u_out", "tau", "p", "W")
+        keep_span(self, {"velocity": (wd, w), "torque": (u, tau), "power": (p,),
+                         "passivity": (W,)})  # fmt: skip
         self.velocity.data = (t, wd, w)
         self.torque.data = (t, u, tau)
         self.power.data = (t, p)
@@ -195,6 +232,8 @@ class SessionCharts:
             return np.ascontiguousarray(columns.get(name, np.zeros(0)), dtype=np.float64)
 
         t = c("t")
+        keep_span(self, {"velocity": (c("wd"), c("w")), "torque": (c("u"), c("tau")),
+                         "power": (c("p"),), "passivity": (c("W"),)})  # fmt: skip
         self.velocity.data = plottable((t, c("wd"), c("w")))
         self.torque.data = plottable((t, c("u"), c("tau")))
         self.power.data = plottable((t, c("p")))
@@ -202,6 +241,12 @@ class SessionCharts:
 
     def clear(self) -> None:
         self.show({})
+
+
+def keep_span(charts: LiveCharts | SessionCharts, data: dict[str, tuple[np.ndarray, ...]]) -> None:
+    """Each of the four charts' y range, at least its :data:`MIN_SPAN`."""
+    for name, ys in data.items():
+        set_range(getattr(charts, name), span_range(*ys, min_span=MIN_SPAN[name]))
 
 
 def seeker_data(
@@ -306,7 +351,7 @@ def trend_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
         series=(
             up.Series(label="date"),
             up.Series(
-                label="optimum [rad/s]",
+                label="optimum",
                 stroke="#1c7ed6",
                 width=1.5,
                 points=up.Series_Points(show=True, size=7),
