@@ -62,6 +62,7 @@ from tests.dashboard.conftest import (
 # The simulated person of this test and the optimum of their power τ(w)·w.
 TAU0, WMAX, A = 3.0, 10.0, 0.25
 W_STAR = WMAX * (math.sqrt(A * A + A) - A)  # 3.0902 rad/s
+RPM = 60.0 / (2.0 * math.pi)  # rpm per rad/s (independent of sessions.units)
 # The default Brent seeker stops when its bracket, which holds the maximum, is narrower than
 # `threshold` = 0.1 rad/s (= 2 min_step); the user is noise-free, so the answer is within it.
 TOLERANCE = 0.1
@@ -80,6 +81,7 @@ class Afternoon:
     label: str = ""
     first: int = 0
     found: float = math.nan
+    found_rpm: str = ""
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +148,10 @@ def test_a_session_moves_the_charts_and_finds_the_optimum(
     bar = page.get_by_role("progressbar").first
     assert float(bar.get_attribute("aria-valuenow") or 0) == 100.0
     wait_text(page, rf"Last session #{first}: completed", 30_000)
-    wait_text(page, rf"Stored optimum for Hill test person: {found:.3f} rad/s")
+    # the dashboard shows rpm by default (the account's preference; REST stays SI)
+    shown = float(wait_text(page, r"Stored optimum for Hill test person: ([\d.]+) rpm").group(1))
+    assert abs(shown - found * RPM) <= 0.05 + 0.0005 * RPM, (shown, found)
+    trainer.found_rpm = f"{shown:.1f}"
 
 
 def test_the_e_stop_zeroes_the_torque_and_latches_until_reset(
@@ -188,10 +193,10 @@ def test_the_e_stop_zeroes_the_torque_and_latches_until_reset(
 def test_history_shows_the_sessions_their_charts_and_csv(
     server: DemoServer, trainer: Afternoon
 ) -> None:
-    page, first, found = trainer.page, trainer.first, trainer.found
+    page, first = trainer.page, trainer.first
     page.get_by_role("tab", name="History", exact=True).click()
     pick(page, "History of", trainer.label)
-    wait_text(page, rf"Hill test person · 2 sessions · current optimum {found:.3f} rad/s")
+    wait_text(page, rf"Hill test person · 2 sessions · current optimum {trainer.found_rpm} rpm")
     options = f"#{first} · "
     page.get_by_role("combobox", name="Session", exact=True).click()
     page.get_by_role("option", name=re.compile(re.escape(options))).click()
