@@ -149,11 +149,27 @@ def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scal
     }
 
 
+def keeps(shown: tuple[float, float] | None, wanted: tuple[float, float]) -> bool:
+    """Whether the range shown still serves: the data's range inside it and the shown one at
+    most 3 times as wide. (viser's client rebuilds a chart whose scales change, so a live
+    chart's range changes only when it must: a ramp up, a new session.)"""
+    if shown is None:
+        return False
+    inside = shown[0] <= wanted[0] and wanted[1] <= shown[1]
+    return inside and shown[1] - shown[0] <= 3.0 * (wanted[1] - wanted[0])
+
+
 def set_range(chart: viser.GuiUplotHandle, y_range: tuple[float, float]) -> None:
-    """Send a chart's y range only when it changed."""
-    if getattr(chart, "_ergoseek_range", None) != y_range:
-        chart._ergoseek_range = y_range  # type: ignore[attr-defined]
-        chart.scales = {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
+    """Send a chart's y range only when the one shown no longer serves (:func:`keeps`); a new
+    one gets a quarter of its span as headroom on each side."""
+    shown = getattr(chart, "_ergoseek_range", None)
+    if keeps(shown, y_range):
+        return
+    lo, hi = y_range
+    pad = 0.25 * (hi - lo)
+    y_range = (lo - pad, hi + pad)
+    chart._ergoseek_range = y_range  # type: ignore[attr-defined]
+    chart.scales = {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
 
 
 def series(label: str, stroke: str, **extra: Any) -> up.Series:

@@ -40,6 +40,7 @@ from testing.browser import (
     VIEWPORT,
     DemoServer,
     cookie_of,
+    element_shot,
     login,
     pick,
     set_number,
@@ -131,9 +132,9 @@ def test_a_session_moves_the_charts_and_finds_the_optimum(
     # -- the charts move ---
     r1 = wait_readout(page, lambda r: r["t"] > 1.0)
     chart = page.locator(".uplot").first
-    shot1 = chart.screenshot()
+    shot1 = element_shot(chart)
     r2 = wait_readout(page, lambda r: r["t"] > r1["t"] + 1.0)
-    shot2 = chart.screenshot()
+    shot2 = element_shot(chart)
     assert r2["t"] > r1["t"]
     assert shot1 != shot2, "the velocity chart did not change while the session ran"
     wait_readout(page, lambda r: r["t"] > 9.0)

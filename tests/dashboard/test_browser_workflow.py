@@ -94,6 +94,8 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     assert page.get_by_role("combobox", name="Protocol", exact=True).input_value() == (
         "as edited below"
     )
+    page.keyboard.press("Escape")  # (Tab from the last field opened the next dropdown)
+    page.get_by_text("Train (work / rest intervals)").scroll_into_view_if_needed()
     page.screenshot(path=str(tmp_path / "protocol-editor.png"))
     page.get_by_role("button", name="Start", exact=True).click()
     sid = int(wait_text(page, r"Session #(\d+) started by demo").group(1))
