@@ -41,9 +41,6 @@ LIVE = {name: i for i, name in enumerate(LIVE_COLUMNS)}
 _RECORD_COLS = np.array([RECORD_INDEX[name] for name in LIVE_COLUMNS])
 
 NUMBERS = {"time": False}
-# Minimum y spans: a steady signal's 1e-4 zigzag must not fill the chart (three identical
-# tick labels, "3.095", on a steady velocity). Units as charted.
-MIN_SPAN = {"velocity": 0.5, "torque": 0.5, "power": 1.0, "passivity": 1.0}
 AXIS_GREY = "#888"
 
 
@@ -149,29 +146,6 @@ def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scal
     }
 
 
-def keeps(shown: tuple[float, float] | None, wanted: tuple[float, float]) -> bool:
-    """Whether the range shown still serves: the data's range inside it and the shown one at
-    most 3 times as wide. (viser's client rebuilds a chart whose scales change, so a live
-    chart's range changes only when it must: a ramp up, a new session.)"""
-    if shown is None:
-        return False
-    inside = shown[0] <= wanted[0] and wanted[1] <= shown[1]
-    return inside and shown[1] - shown[0] <= 3.0 * (wanted[1] - wanted[0])
-
-
-def set_range(chart: viser.GuiUplotHandle, y_range: tuple[float, float]) -> None:
-    """Send a chart's y range only when the one shown no longer serves (:func:`keeps`); a new
-    one gets a quarter of its span as headroom on each side."""
-    shown = getattr(chart, "_ergoseek_range", None)
-    if keeps(shown, y_range):
-        return
-    lo, hi = y_range
-    pad = 0.25 * (hi - lo)
-    y_range = (lo - pad, hi + pad)
-    chart._ergoseek_range = y_range  # type: ignore[attr-defined]
-    chart.scales = {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
-
-
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
     return up.Series(label=label, stroke=stroke, width=1.5, **extra)  # type: ignore[typeddict-item]
 
@@ -222,8 +196,6 @@ class LiveCharts:
 
     def show(self, window: LiveWindow) -> None:
         t, wd, w, u, tau, p, W = window.series("t", "wd", "w", "u_out", "tau", "p", "W")
-        keep_span(self, {"velocity": (wd, w), "torque": (u, tau), "power": (p,),
-                         "passivity": (W,)})  # fmt: skip
         self.velocity.data = (t, wd, w)
         self.torque.data = (t, u, tau)
         self.power.data = (t, p)
@@ -248,8 +220,6 @@ class SessionCharts:
             return np.ascontiguousarray(columns.get(name, np.zeros(0)), dtype=np.float64)
 
         t = c("t")
-        keep_span(self, {"velocity": (c("wd"), c("w")), "torque": (c("u"), c("tau")),
-                         "power": (c("p"),), "passivity": (c("W"),)})  # fmt: skip
         self.velocity.data = plottable((t, c("wd"), c("w")))
         self.torque.data = plottable((t, c("u"), c("tau")))
         self.power.data = plottable((t, c("p")))
@@ -257,12 +227,6 @@ class SessionCharts:
 
     def clear(self) -> None:
         self.show({})
-
-
-def keep_span(charts: LiveCharts | SessionCharts, data: dict[str, tuple[np.ndarray, ...]]) -> None:
-    """Each of the four charts' y range, at least its :data:`MIN_SPAN`."""
-    for name, ys in data.items():
-        set_range(getattr(charts, name), span_range(*ys, min_span=MIN_SPAN[name]))
 
 
 def seeker_data(

@@ -13,7 +13,7 @@ from sessions.protocol.config import Protocol
 from sessions.protocol.stage import Stage
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
-from webui.charts import keeps, span_range
+from webui.charts import span_range
 from webui.escape import WORD_JOINER
 from webui.feed import LiveState
 from webui.tabs.protocol import fits_form, phase_markdown
@@ -107,11 +107,3 @@ def test_which_protocols_the_form_can_show() -> None:
     assert fits_form(p("seek", "profile", "train"))
     assert not fits_form(p("train", "warmup"))  # another order: runs as stored
     assert not fits_form(p("warmup", "train", "train"))  # a kind twice
-
-
-def test_a_live_range_changes_only_when_it_must() -> None:
-    shown = (2.75, 3.5)
-    assert keeps(shown, span_range(3.095 + 1e-4 * np.arange(3), min_span=0.5))  # steady
-    assert not keeps(shown, span_range(np.array([0.0, 3.1]), min_span=0.5))  # a ramp up
-    assert not keeps((0.0, 30.0), span_range(np.array([3.0, 3.1]), min_span=0.5))  # too wide
-    assert not keeps(None, shown)
