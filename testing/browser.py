@@ -196,6 +196,18 @@ def wait_text(page: Page, pattern: str, timeout_ms: int = UI_TIMEOUT) -> re.Matc
         time.sleep(0.2)
 
 
+def element_shot(locator: Locator, timeout_s: float = 30.0) -> bytes:
+    """A screenshot of the element ``locator`` finds, taken again if the element was replaced
+    while it was taken (viser's client rebuilds a chart whose scales change)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return locator.screenshot()
+        except Exception as exc:  # playwright's Error: "Element is not attached to the DOM"
+            if "not attached" not in str(exc) or time.monotonic() > deadline:
+                raise
+
+
 def csp_violations(page: Page) -> list[dict[str, str]]:
     """The CSP violations the page reported (:data:`CSP_RECORDER` must be installed)."""
     return list(page.evaluate("window.__csp || []"))

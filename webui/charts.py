@@ -121,6 +121,31 @@ def plottable(data: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     return (np.ascontiguousarray(data[0], dtype=np.float64), *map(lead_finite, data[1:]))
 
 
+def span_range(*ys: np.ndarray, min_span: float = 1.0) -> tuple[float, float]:
+    """A y range over the finite values of ``ys``, 5 % padded, at least ``min_span`` wide,
+    its ends on multiples of ``min_span / 4`` (so it moves only when the data leaves it)."""
+    finite = [y[np.isfinite(y)] for y in ys if len(y)]
+    values = np.concatenate(finite) if finite else np.zeros(0)
+    if not len(values):
+        return (0.0, float(min_span))
+    lo, hi = float(values.min()), float(values.max())
+    pad = 0.05 * (hi - lo)
+    lo, hi = lo - pad, hi + pad
+    if hi - lo < min_span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * min_span, mid + 0.5 * min_span
+    step = min_span / 4.0
+    return (float(np.floor(lo / step) * step), float(np.ceil(hi / step) * step))
+
+
+def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scale]:
+    """A time chart's scales with the y range of :func:`span_range`."""
+    return {
+        "x": up.Scale(time=False),
+        "y": up.Scale(auto=False, range=span_range(*ys, min_span=min_span)),
+    }
+
+
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
     return up.Series(label=label, stroke=stroke, width=1.5, **extra)  # type: ignore[typeddict-item]
 
@@ -306,7 +331,7 @@ def trend_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
         series=(
             up.Series(label="date"),
             up.Series(
-                label="optimum [rad/s]",
+                label="optimum",
                 stroke="#1c7ed6",
                 width=1.5,
                 points=up.Series_Points(show=True, size=7),

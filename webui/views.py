@@ -41,6 +41,7 @@ from webui.scene import MachineScene
 from webui.tabs.history import HistoryTab
 from webui.tabs.live import LiveTab, status_markdown
 from webui.tabs.users import UsersTab
+from webui.units import VELOCITY_UNITS, Units, load_units, save_units
 
 log = logging.getLogger("ergoseek.dashboard")
 
@@ -190,14 +191,20 @@ class ClientView:
         self.ctx = ctx
         gui = client.gui
         guard_updates(gui)
-        self.live = LiveTab(gui, ctx, who)  # E-STOP, Start, Stop, Reset: the main panel's top
+        self.units = self._units()
+        self.live = LiveTab(gui, ctx, who, self.units)  # E-STOP, Start, Stop, Reset: on top
         self.controls = gui.add_panel(order=layout.PANEL_ORDER["controls"])
         with self.controls.add_tab("Live", viser.Icon.ACTIVITY):
             role = "trainer controls" if who.trainer else "view only"
             self.account = HtmlBox(gui, logout_html(who, role))
+            self.unit = gui.add_dropdown(
+                "Velocity in", VELOCITY_UNITS, initial_value=self.units.velocity,
+                hint="Your account's preference: what this dashboard shows (the API stays SI)",
+            )  # fmt: skip
+            self.unit.on_update(lambda _: ctx.background(self._unit_changed))
             self.live.build_tab(gui)
         with self.controls.add_tab("History", viser.Icon.HISTORY):
-            self.history = HistoryTab(gui, ctx)
+            self.history = HistoryTab(gui, ctx, self.units)
         self.users: UsersTab | None = None
         if who.trainer:
             with self.controls.add_tab("Users", viser.Icon.USERS):
@@ -213,6 +220,26 @@ class ClientView:
         ctx.background(self.history.load_user)
         if who.trainer:
             ctx.background(self.live._show_optimum)
+            ctx.background(self.live.protocol.load_templates)
+
+    def _units(self) -> Units:
+        try:
+            return load_units(self.ctx.store, self.who.account_id)
+        except Exception:  # (an account deleted meanwhile: the proxy closes the socket)
+            log.exception("reading the preferences of account %s", self.who.account_id)
+            return Units()
+
+    def _unit_changed(self) -> None:
+        """The browser picked another velocity unit: store it for the account, show it."""
+        unit = self.unit.value
+        if unit == self.units.velocity:
+            return
+        before = self.units.factor
+        self.units.velocity = save_units(self.ctx.store, self.who.account_id, unit).velocity
+        if self.who.trainer:
+            self.live.protocol.units_changed(before)
+            self.live._show_optimum()
+        self.history.load_user()
 
     def render(self, st: LiveState, picture: Picture | None) -> None:
         """Feed thread: the seeker when it changed; the text when ``picture`` is given."""

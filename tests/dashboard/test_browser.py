@@ -40,6 +40,7 @@ from testing.browser import (
     VIEWPORT,
     DemoServer,
     cookie_of,
+    element_shot,
     login,
     pick,
     set_number,
@@ -62,6 +63,7 @@ from tests.dashboard.conftest import (
 # The simulated person of this test and the optimum of their power τ(w)·w.
 TAU0, WMAX, A = 3.0, 10.0, 0.25
 W_STAR = WMAX * (math.sqrt(A * A + A) - A)  # 3.0902 rad/s
+RPM = 60.0 / (2.0 * math.pi)  # rpm per rad/s (independent of sessions.units)
 # The Brent seeker (picked: the default sweep tracks on after converging, so the optimum shown
 # at convergence is not the one stored at the end) stops when its bracket, which holds the
 # maximum, is narrower than `threshold` = 0.1 rad/s (= 2 min_step); the user is noise-free.
@@ -81,6 +83,7 @@ class Afternoon:
     label: str = ""
     first: int = 0
     found: float = math.nan
+    found_rpm: str = ""
 
 
 @pytest.fixture(scope="module")
@@ -131,9 +134,9 @@ def test_a_session_moves_the_charts_and_finds_the_optimum(
     # -- the charts move ---
     r1 = wait_readout(page, lambda r: r["t"] > 1.0)
     chart = page.locator(".uplot").first
-    shot1 = chart.screenshot()
+    shot1 = element_shot(chart)
     r2 = wait_readout(page, lambda r: r["t"] > r1["t"] + 1.0)
-    shot2 = chart.screenshot()
+    shot2 = element_shot(chart)
     assert r2["t"] > r1["t"]
     assert shot1 != shot2, "the velocity chart did not change while the session ran"
     wait_readout(page, lambda r: r["t"] > 9.0)
@@ -148,7 +151,10 @@ def test_a_session_moves_the_charts_and_finds_the_optimum(
     bar = page.get_by_role("progressbar").first
     assert float(bar.get_attribute("aria-valuenow") or 0) == 100.0
     wait_text(page, rf"Last session #{first}: completed", 30_000)
-    wait_text(page, rf"Stored optimum for Hill test person: {found:.3f} rad/s")
+    # the dashboard shows rpm by default (the account's preference; REST stays SI)
+    shown = float(wait_text(page, r"Stored optimum for Hill test person: ([\d.]+) rpm").group(1))
+    assert abs(shown - found * RPM) <= 0.05 + 0.0005 * RPM, (shown, found)
+    trainer.found_rpm = f"{shown:.1f}"
 
 
 def test_the_e_stop_zeroes_the_torque_and_latches_until_reset(
@@ -190,10 +196,10 @@ def test_the_e_stop_zeroes_the_torque_and_latches_until_reset(
 def test_history_shows_the_sessions_their_charts_and_csv(
     server: DemoServer, trainer: Afternoon
 ) -> None:
-    page, first, found = trainer.page, trainer.first, trainer.found
+    page, first = trainer.page, trainer.first
     page.get_by_role("tab", name="History", exact=True).click()
     pick(page, "History of", trainer.label)
-    wait_text(page, rf"Hill test person · 2 sessions · current optimum {found:.3f} rad/s")
+    wait_text(page, rf"Hill test person · 2 sessions · current optimum {trainer.found_rpm} rpm")
     options = f"#{first} · "
     page.get_by_role("combobox", name="Session", exact=True).click()
     page.get_by_role("option", name=re.compile(re.escape(options))).click()

@@ -15,24 +15,27 @@ from sessions.telemetry import NAMES
 from webui.charts import HISTORY_POINTS, SessionCharts, plottable, trend_chart, trend_scales
 from webui.context import Context, relabel
 from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
+from webui.tabs.progress import ProgressPanel
+from webui.units import Units
 
 NO_SESSIONS = "(no sessions)"
 SESSION_LIMIT = 50
 
 
-def session_label(s: SessionRecord) -> str:
-    optimum = f" · {s.optimum_w:.3f} rad/s" if s.optimum_w is not None else ""
+def session_label(s: SessionRecord, units: Units | None = None) -> str:
+    optimum = f" · {(units or Units()).v(s.optimum_w)}" if s.optimum_w is not None else ""
     when = s.started_at.strftime("%Y-%m-%d %H:%M")
     return f"#{s.id} · {when} · {s.status}{optimum}"
 
 
-def session_markdown(s: SessionRecord) -> Markdown:
+def session_markdown(s: SessionRecord, units: Units | None = None) -> Markdown:
+    units = units or Units()
     cfg = s.config
     seeker = cfg.get("seeker", {}) if isinstance(cfg, dict) else {}
     controller = cfg.get("controller", {}) if isinstance(cfg, dict) else {}
     if s.optimum_w is not None and s.optimum_p is not None:
         converged = md(" converged") if s.converged else md("")
-        optimum = md("**{:.3f} rad/s** ({:.3f} W){}", s.optimum_w, s.optimum_p, converged)
+        optimum = md("**{}** ({:.3f} W){}", units.v(s.optimum_w), s.optimum_p, converged)
     else:
         optimum = md("none")
     reason = md(" ({})", s.abort_reason) if s.abort_reason else md("")
@@ -55,7 +58,14 @@ def session_markdown(s: SessionRecord) -> Markdown:
             s.work,
             s.passivity_min,
         ),
-        md("[Download CSV (full rate)](/api/v1/sessions/{}/telemetry.csv)", int(s.id)),
+        md(
+            "[Download report (PDF)](/api/v1/sessions/{}/report.pdf) · "
+            "[Download activity (FIT)](/api/v1/sessions/{}/activity.fit) · "
+            "[Download CSV (full rate)](/api/v1/sessions/{}/telemetry.csv)",
+            int(s.id),
+            int(s.id),
+            int(s.id),
+        ),
     ]
     return md_lines(lines)
 
@@ -83,18 +93,22 @@ def search_markdown(s: SessionRecord) -> list[Markdown]:
 
 
 def sessions_table(
-    user: UserRecord, total: int, sessions: list[SessionRecord], velocity: float | None
+    user: UserRecord,
+    total: int,
+    sessions: list[SessionRecord],
+    velocity: float | None,
+    units: Units | None = None,
 ) -> Markdown:
     """A user's head line and their latest sessions as a table."""
+    units = units or Units()
     count = md("{} session{}", total, "" if total == 1 else "s")
-    current = (
-        md(" · current optimum **{:.3f} rad/s**", velocity) if velocity is not None else md("")
-    )
+    current = md(" · current optimum **{}**", units.v(velocity)) if velocity is not None else md("")
     lines = [md("**{}** · {}{}", user.name, count, current)]
     if sessions:
-        lines += [md(""), md("| # | started | status | optimum |"), md("|---|---|---|---|")]
+        head = md("| # | started | status | optimum [{}] |", units.label)
+        lines += [md(""), head, md("|---|---|---|---|")]
         for s in sessions[:10]:
-            opt = f"{s.optimum_w:.3f}" if s.optimum_w is not None else "—"
+            opt = units.number(s.optimum_w)
             if s.at_bound is not None:
                 opt += f" (at the {s.at_bound} bound)"
             started = s.started_at.strftime("%m-%d %H:%M:%S")
@@ -103,11 +117,14 @@ def sessions_table(
 
 
 class HistoryTab:
-    def __init__(self, gui: viser.GuiApi, ctx: Context) -> None:
+    def __init__(self, gui: viser.GuiApi, ctx: Context, units: Units) -> None:
         self.ctx = ctx
+        self.units = units
         self.user = gui.add_dropdown("History of", ctx.user_options())
         self.summary = MarkdownBox(gui, md("Pick a user."))
         self.trend = trend_chart(gui)
+        self.trend.visible = False
+        self.progress = ProgressPanel(gui, ctx, units)
         self.session = gui.add_dropdown("Session", (NO_SESSIONS,))
         self.detail = MarkdownBox(gui, md(" "))
         self.charts = SessionCharts(gui)
@@ -118,7 +135,8 @@ class HistoryTab:
     def load_user(self) -> None:
         user = self.ctx.user_by_label(self.user.value)
         if user is None:
-            self.summary.show(md("Pick a user."))
+            self.summary.show(md("Pick a user, or add one in the Users tab."))
+            self.progress.hide("Pick a user to see their progress.")
             self._sessions = {}
             self.session.options = (NO_SESSIONS,)
             return
@@ -127,14 +145,20 @@ class HistoryTab:
         history = store.setpoints.history(user.id)
         current = store.setpoints.current(user.id)
         velocity = current.velocity if current is not None else None
-        self.summary.show(sessions_table(user, page.total, page.items, velocity))
+        table = sessions_table(user, page.total, page.items, velocity, self.units)
+        if not history:
+            table = md_lines([table, md("No optimum stored yet: run a session to find one.")])
+        self.summary.show(table)
         ordered = sorted(history, key=lambda r: r.created_at)
         when = np.array([r.created_at.timestamp() for r in ordered], dtype=np.float64)
         self.trend.scales = trend_scales(when)
         self.trend.data = plottable(
-            (when, np.array([r.velocity for r in ordered], dtype=np.float64))
+            (when, np.array([r.velocity for r in ordered], dtype=np.float64) * self.units.factor)
         )
-        self._sessions = {session_label(s): s.id for s in page.items}
+        self.trend.visible = bool(history)
+        self.trend.title = f"setpoint trend: optimum [{self.units.label}]"
+        self._sessions = {session_label(s, self.units): s.id for s in page.items}
+        self.progress.show(user, page.items, self._sessions)
         previous = self.session.value
         self.session.options = tuple(self._sessions) or (NO_SESSIONS,)
         if self.session.value == previous:  # options kept it: reload it anyway (it may have ended)
@@ -155,7 +179,7 @@ class HistoryTab:
             return
         bucket = md(" (min/max per bucket)") if data.decimated else md("")
         charts = md("Charts: {} of {} samples{}", len(data), data.samples, bucket)
-        self.detail.show(md_lines([session_markdown(record), charts]))
+        self.detail.show(md_lines([session_markdown(record, self.units), charts]))
         self.charts.show({name: data.columns[i] for i, name in enumerate(NAMES)})
 
     def users_changed(self, options: tuple[str, ...]) -> None:

@@ -40,6 +40,8 @@ from webui import layout
 from webui.bridge import Who
 from webui.context import Context, relabel
 from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
+from webui.tabs.protocol import ProtocolEditor, phase_markdown
+from webui.units import Units, live_numbers
 
 if TYPE_CHECKING:
     from webui.feed import LiveState
@@ -126,8 +128,9 @@ class LiveTab:
     panel, always in reach (:mod:`webui.layout`'s orders); :meth:`build_tab` (inside the
     Live tab) the status, the session setup and the log."""
 
-    def __init__(self, gui: viser.GuiApi, ctx: Context, who: Who) -> None:
+    def __init__(self, gui: viser.GuiApi, ctx: Context, who: Who, units: Units) -> None:
         self.gui = gui
+        self.units = units
         self.ctx = ctx
         self.who = who
         self.control = who.trainer
@@ -148,6 +151,8 @@ class LiveTab:
     def build_tab(self, gui: viser.GuiApi) -> None:
         """The Live tab's content (call inside it)."""
         self.status = MarkdownBox(gui, md("Machine: **starting**"))
+        self.numbers = MarkdownBox(gui, md("No live data yet."))
+        self.phase = MarkdownBox(gui, md("Phase: —"))
         if self.control:
             with gui.add_folder("Session setup"):
                 self._build_setup(gui)
@@ -164,6 +169,7 @@ class LiveTab:
         self.duration = gui.add_number(
             "Duration (s)", DEFAULT_DURATION, min=1.0, max=3600.0, step=1.0
         )
+        self.protocol = ProtocolEditor(gui, ctx, self.who, self.units)
         self.controller = gui.add_dropdown("Controller", tuple(CONTROLLERS))
         self.controller_help = MarkdownBox(gui, md("{}", CONTROLLERS["rise"]))
         self.seeker = gui.add_dropdown("Seeker", SEEKERS, initial_value=DEFAULT_SEEKER)
@@ -244,9 +250,9 @@ class LiveTab:
             power = md(", {:.3f} W", current.power) if current.power is not None else md("")
             source = md(", session #{}", current.session_id) if current.session_id else md("")
             text = md(
-                "Stored optimum for {}: **{:.3f} rad/s**{}{}",
+                "Stored optimum for {}: **{}**{}{}",
                 user.name,
-                current.velocity,
+                self.units.v(current.velocity),
                 power,
                 source,
             )
@@ -273,9 +279,13 @@ class LiveTab:
         seeker: dict[str, Any] = {"kind": self.seeker.value, "objective": self.objective.value}
         if self.bracket_mode.value == BRACKET_CUSTOM:
             seeker["bracket"] = (self.g1.value, self.g2.value, self.g3.value)
+        protocol = self.protocol.selection()
+        timing: dict[str, Any] = (
+            {"protocol": protocol} if protocol is not None else {"duration": self.duration.value}
+        )  # a protocol's session lasts the longest it can take (sessions.requests)
         return SessionStart(
             user_id=user.id,
-            duration=float(self.duration.value),
+            **timing,
             controller=controller,
             seeker=SeekerConfig(**seeker),
             limits=LimitsIn(
@@ -377,6 +387,8 @@ class LiveTab:
         """The status, the log and what may be pressed now (feed thread, ~6 times a
         second; only what changed is sent)."""
         self.status.show(status)
+        self.numbers.show(live_numbers(st, self.units, self.ctx))
+        self.phase.show(phase_markdown(st, self.units))
         self.log.show(log_lines)
         if self.control:
             ms = st.status

@@ -1,0 +1,156 @@
+"""The trainer's workflow in a real browser (Debian's Chromium, Playwright) against
+``ergoseek demo``: ONE page load, in order —
+
+- a protocol edited in the session setup (warm-up 3 s → seek ≤ 20 s → train 2 × (10 s work /
+  10 s rest) → cool-down 5 s) and started from the dashboard; the Live tab says which phase
+  runs, what is left and what comes next; the session ends at rest with the stored phases
+  matching the protocol;
+- velocities in rpm (the dashboard's default) until the account picks rad/s: the stored
+  optimum the page shows is the session's, converted independently here, in either unit;
+  the preference is the account's (REST reads it back);
+- History: the progress across sessions with W/kg (the user's body mass is known), and the
+  session's report (PDF) and activity (FIT) fetched through the page's own login, refused
+  without it.
+
+With ``ERGOSEEK_UPDATE_SCREENSHOT=1`` the protocol editor's screenshot and the report's
+first page (pdftoppm) replace ``docs/img/protocol-editor.png`` and ``docs/img/report.png``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from sessions.store import open_store
+from testing.browser import TRAINER, VIEWPORT, DemoServer, login, pick, set_number
+from testing.browser import wait_text as wait_for_text
+
+RPM = 60.0 / (2.0 * math.pi)  # independent of sessions.units
+HILL = {"kind": "hill", "tau0": 3.0, "wmax": 10.0, "curvature": 0.25}
+NAME = "Protocol person"
+MASS = 70.0
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "img"
+FORM = {  # what the trainer types (seconds; the velocities stay at their defaults)
+    "warm-up (s)": 3,
+    "seek: longest (s)": 20,
+    "seek: hold once converged (s)": 1,
+    "intervals": 2,
+    "work (s)": 10,
+    "rest (s)": 10,
+    "countdown (s)": 2,
+    "cool-down (s)": 5,
+    "cool-down: hold at rest (s)": 1,
+}
+PAGE_WAIT_MS = 120_000  # a loaded 2-core VM has stalled this page's renderer for 22 s
+PLANNED = "warmup 3 s → seek ≤ 20 s → train 2 × 10/10 s → cooldown 5 s"
+
+
+def wait_text(page: Any, pattern: str, timeout_ms: int = PAGE_WAIT_MS) -> re.Match[str]:
+    return wait_for_text(page, pattern, timeout_ms)
+
+
+def wait_phases(server: DemoServer, sid: int, timeout: float = 30.0) -> list[dict[str, Any]]:
+    """The session's phases once each has its summary (the pump writes them last)."""
+    deadline = time.monotonic() + timeout
+    with server.client() as api:
+        while True:
+            phases = api.get(f"/api/v1/sessions/{sid}/phases").json()
+            if all(p["mean_power"] is not None for p in phases) or time.monotonic() > deadline:
+                return phases
+            time.sleep(0.2)
+
+
+def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
+    server: DemoServer, browser: Any, tmp_path: Path
+) -> None:
+    with server.client() as api:
+        user = api.post("/api/v1/users", json={"name": NAME, "body_mass_kg": MASS,
+                                               "sim_profile": HILL}).json()  # fmt: skip
+        assert api.get("/api/v1/accounts/me/preferences").json()["velocity_unit"] == "rpm"
+    label = f"{NAME} (#{user['id']})"
+    context = browser.new_context(viewport=VIEWPORT)
+    page = context.new_page()
+    page.set_default_timeout(PAGE_WAIT_MS)  # waits on conditions; the shared VM stalls pages
+    login(page, server.url, TRAINER, server.password, timeout=PAGE_WAIT_MS / 1e3)
+    pick(page, "User", label)
+    wait_text(page, rf"Stored optimum for {NAME}: none yet")
+
+    # -- the protocol, edited in the session setup ---
+    page.get_by_text("Protocol phases", exact=True).click()
+    for field, value in FORM.items():
+        set_number(page, field, value)
+    wait_text(page, re.escape(PLANNED))
+    assert page.get_by_role("combobox", name="Protocol", exact=True).input_value() == (
+        "as edited below"
+    )
+    page.keyboard.press("Escape")  # (Tab from the last field opened the next dropdown)
+    page.get_by_text("Train (work / rest intervals)").scroll_into_view_if_needed()
+    page.screenshot(path=str(tmp_path / "protocol-editor.png"))
+    page.get_by_role("button", name="Start", exact=True).click()
+    sid = int(wait_text(page, r"Session #(\d+) started by demo").group(1))
+
+    # -- live: the phase, what is left, what comes next; velocities in rpm ---
+    work = wait_text(page, r"Phase (\S+ \d) \((\d)/4\) · WORK 1/2 · (\d+) s left.* next: (\S+)",
+                     PAGE_WAIT_MS)  # fmt: skip
+    assert (work.group(2), work.group(4)) == ("3", "cooldown"), work.group(0)
+    assert int(work.group(3)) <= 10
+    wait_text(page, r"Velocity [\d.]+ rpm \(target [\d.]+ rpm\) · power [-\d.]+ W \([-\d.]+ W/kg\)")
+    wait_text(page, rf"Last session #{sid}: completed", 2 * PAGE_WAIT_MS)
+
+    # -- the stored optimum, in rpm, then in rad/s once the account says so ---
+    with server.client() as api:
+        optimum = api.get(f"/api/v1/sessions/{sid}").json()["session"]["optimum_w"]
+    shown_rpm = wait_text(page, rf"Stored optimum for {NAME}: ([\d.]+) rpm").group(1)
+    assert shown_rpm == f"{optimum * RPM:.1f}"
+    pick(page, "Velocity in", "rad/s")
+    shown = wait_text(page, rf"Stored optimum for {NAME}: ([\d.]+) rad/s").group(1)
+    assert shown == f"{optimum:.3f}"
+    with server.client() as api:
+        assert api.get("/api/v1/accounts/me/preferences").json()["velocity_unit"] == "rad/s"
+
+    # -- the stored phases match the protocol, and the session ended at rest ---
+    phases = wait_phases(server, sid)
+    assert [p["kind"] for p in phases] == ["warmup", "seek", "train", "cooldown"]
+    warm, seek, train, cool = phases
+    assert warm["t_end"] == pytest.approx(3.0)
+    assert seek["t_end"] - seek["t_start"] <= 20.0 + 1e-6
+    assert train["t_end"] - train["t_start"] == pytest.approx(2.0 + 2 * 20.0)
+    assert cool["t_end"] - cool["t_start"] >= 5.0 + 1.0
+    assert all(a["t_end"] == b["t_start"] for a, b in itertools.pairwise(phases))
+    with open_store(server.database_url, upgrade=False) as store:
+        c = store.telemetry.columns(sid, ("t", "w", "u"))
+    last = c["t"] >= c["t"][-1] - 0.5
+    assert np.abs(c["w"][last]).max() < 0.05 and np.abs(c["u"][last]).max() < 0.05
+
+    # -- History: progress with W/kg; the report and the activity through the login ---
+    page.get_by_role("tab", name="History", exact=True).click()
+    pick(page, "History of", label)
+    wait_text(page, rf"1 ended session · W/kg with {MASS:g} kg")
+    page.get_by_role("combobox", name="Session", exact=True).click()
+    page.get_by_role("option", name=re.compile(rf"^#{sid} ")).click()
+    report = page.get_by_role("link", name="Download report (PDF)")
+    report.wait_for()
+    fit = page.get_by_role("link", name="Download activity (FIT)")
+    pdf = context.request.get(server.url + report.get_attribute("href"))
+    assert pdf.status == 200 and pdf.body().startswith(b"%PDF")
+    activity = context.request.get(server.url + fit.get_attribute("href"))
+    assert activity.status == 200 and activity.body()[8:12] == b".FIT"
+    assert httpx.get(server.url + report.get_attribute("href")).status_code == 401
+    if os.environ.get("ERGOSEEK_UPDATE_SCREENSHOT"):
+        shutil.copy(tmp_path / "protocol-editor.png", DOCS / "protocol-editor.png")
+        (tmp_path / "report.pdf").write_bytes(pdf.body())
+        pdf_file = str(tmp_path / "report.pdf")
+        cmd = ["pdftoppm", "-png", "-r", "80", "-singlefile", pdf_file, str(DOCS / "report")]
+        subprocess.run(cmd, check=True)
+    context.close()
