@@ -29,6 +29,7 @@ from webui.escape import WORD_JOINER
 from webui.feed import describe_event
 from webui.progress import SeekerProgressView
 from webui.tabs.history import session_markdown, sessions_table
+from webui.units import Units
 
 
 def ring_rows(t: np.ndarray, session: int = 1) -> np.ndarray:
@@ -167,7 +168,10 @@ def test_a_session_at_a_bound_tells_the_trainer_to_widen_the_bracket() -> None:
     text = html.unescape(session_markdown(at))
     assert "upper bound" in text and "Widen the bracket's upper end" in text
     assert "not stored" in text and " converged" not in text
-    assert "6.000 (at the upper bound)" in html.unescape(sessions_table(_user(), 1, [at], None))
+    in_rad = sessions_table(_user(), 1, [at], None, Units(velocity="rad/s"))
+    assert "6.000 (at the upper bound)" in html.unescape(in_rad)
+    in_rpm = html.unescape(sessions_table(_user(), 1, [at], None))  # the dashboard's default
+    assert f"{6.0 * 60.0 / (2.0 * math.pi):.1f} (at the upper bound)" in in_rpm
     found = _record(converged=True, t_converged=11.6, wd_converged=3.2)
     text = html.unescape(session_markdown(found))
     assert "bound" not in text and "First converged at 11.6 s on 3.200 rad/s" in text
