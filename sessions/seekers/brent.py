@@ -29,6 +29,7 @@ best point measured.
 from __future__ import annotations
 
 import math
+from collections.abc import Generator
 
 from sessions.seekers.base import Evaluation, FilteredSeeker, Plan
 from sessions.seekers.fit import final_estimate, rms_stderr, top_curvature
@@ -86,15 +87,21 @@ class BrentSeeker(FilteredSeeker):
         return top_curvature(self.evaluations)
 
     def plan(self, lo: float, guess: float, hi: float) -> Plan:
+        """1. bracket the maximum from the best guess; 2. Brent's localmin inside it."""
+        self.noise_tol = 0.0
+        yield from self._bracketing(lo, guess, hi)
+        return (yield from self._localmin(lo, hi))
+
+    def _bracketing(self, lo: float, guess: float, hi: float) -> Generator[float, Evaluation, None]:
+        """Step from the guess, uphill with a lengthening stride, until a point is clearly
+        worse than the best (or a bound or a known point closes the bracket)."""
         cfg = self.cfg
         budget = cfg.max_evaluations
-        self.noise_tol = 0.0
         h = cfg.step if cfg.step is not None else 0.05 * (hi - lo)
 
         def clamp(g: float) -> float:
             return min(max(g, lo), hi)
 
-        # -- 1. bracketing from the best guess ---------------------------------------------
         start: Evaluation = yield guess
         down = (guess - lo) >= (hi - guess)
         probe: Evaluation = yield clamp(guess - h if down else guess + h)
@@ -117,7 +124,10 @@ class BrentSeeker(FilteredSeeker):
             if ev.power > anchor.power:
                 step *= PHI  # still climbing: lengthen the stride
             anchor = ev
-        # -- 2. Brent's localmin on f = -p inside the bracket around the best point ---------
+
+    def _localmin(self, lo: float, hi: float) -> Plan:
+        """Brent's localmin on f = -p inside the bracket around the best point so far."""
+        budget = self.cfg.max_evaluations
         ranked = sorted(self.evaluations, key=lambda m: -m.power)
         best_g = ranked[0].candidate
         left = max((m.candidate for m in ranked if m.candidate < best_g), default=lo)
