@@ -22,6 +22,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
+from server.api.workflow_schemas import TEMPLATE_EXAMPLE
 from server.app import create_app
 from server.security import COOKIE
 from server.settings import Settings
@@ -101,6 +102,42 @@ TABLE: dict[tuple[str, str], Rule] = {
     ),
     ("GET", "/api/v1/sessions/{session_id}/telemetry.csv"): Rule(
         "viewer", "/api/v1/sessions/{sid}/telemetry.csv", 200
+    ),
+    # the trainer's workflow (issue 15): templates (a shared one, which every trainer may
+    # edit), previews, a session's phases, its report and activity file, progress, overlay,
+    # one's own display preferences
+    ("GET", "/api/v1/protocols"): Rule("viewer", "/api/v1/protocols", 200),
+    ("POST", "/api/v1/protocols"): Rule("trainer", "/api/v1/protocols", 201, TEMPLATE_EXAMPLE),
+    ("POST", "/api/v1/protocols/preview"): Rule(
+        "viewer", "/api/v1/protocols/preview", 200, {"protocol": TEMPLATE_EXAMPLE["protocol"]}
+    ),
+    ("GET", "/api/v1/protocols/{template_id}"): Rule("viewer", "/api/v1/protocols/{tpl}", 200),
+    ("PATCH", "/api/v1/protocols/{template_id}"): Rule(
+        "trainer", "/api/v1/protocols/{tpl}", 200, {"description": "edited"}
+    ),
+    ("DELETE", "/api/v1/protocols/{template_id}"): Rule(
+        "trainer", "/api/v1/protocols/{tpl}", 204, still="/api/v1/protocols/{tpl}"
+    ),
+    ("GET", "/api/v1/sessions/{session_id}/phases"): Rule(
+        "viewer", "/api/v1/sessions/{sid}/phases", 200
+    ),
+    ("GET", "/api/v1/sessions/{session_id}/report.pdf"): Rule(
+        "viewer", "/api/v1/sessions/{sid}/report.pdf", 200
+    ),
+    ("GET", "/api/v1/sessions/{session_id}/activity.fit"): Rule(
+        "viewer", "/api/v1/sessions/{sid}/activity.fit", 200
+    ),
+    ("GET", "/api/v1/sessions/{session_id}/overlay"): Rule(
+        "viewer", "/api/v1/sessions/{sid}/overlay?with={sid}", 200
+    ),
+    ("GET", "/api/v1/users/{user_id}/progress"): Rule(
+        "viewer", "/api/v1/users/{user}/progress", 200
+    ),
+    ("GET", "/api/v1/accounts/me/preferences"): Rule(
+        "viewer", "/api/v1/accounts/me/preferences", 200
+    ),
+    ("PUT", "/api/v1/accounts/me/preferences"): Rule(
+        "viewer", "/api/v1/accounts/me/preferences", 200, {"velocity_unit": "rpm"}
     ),
     ("GET", "/api/v1/machine"): Rule("viewer", "/api/v1/machine", 200),
     ("POST", "/api/v1/machine/estop"): Rule("trainer", "/api/v1/machine/estop", 202),
@@ -182,6 +219,9 @@ class Ids:
         with self.server.client("admin") as c:
             if "{user}" in path:
                 ids["user"] = c.post("/api/v1/users", json={"name": f"U{self.n}"}).json()["id"]
+            if "{tpl}" in path:
+                made = {**TEMPLATE_EXAMPLE, "name": f"T{self.n}"}
+                ids["tpl"] = c.post("/api/v1/protocols", json=made).json()["id"]
             if "{acc}" in path:
                 ids["acc"] = c.post(
                     "/api/v1/accounts",
@@ -196,6 +236,8 @@ def _body(rule: Rule, ids: Ids, role: str | None) -> dict[str, Any] | None:
         return {"login": login, "password": {a: p for a, p, _ in ACCOUNTS}[login]}
     if rule.path == "/api/v1/accounts":
         return {**(rule.body or {}), "login": f"new{ids.n}x{role}"}
+    if rule.path == "/api/v1/protocols":  # template names are unique
+        return {**(rule.body or {}), "name": f"T{ids.n}x{role}"}
     return rule.body
 
 
