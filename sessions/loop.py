@@ -120,10 +120,11 @@ class Loop:
             work = self.passivity.work
         self.evaluation = tell(t, q, p, e)
         target = ref.target
-        if target < self.target_min:
-            self.target_min = target
-        if target > self.target_max:
-            self.target_max = target
+        if ref.seeking:  # the seeker's commanded extremes (a warm-up or the wind-down's aren't)
+            if target < self.target_min:
+                self.target_min = target
+            if target > self.target_max:
+                self.target_max = target
         if self.regret_meter is not None:
             self.regret_meter.add(t, w)
         self.row = (t, q, w, wd, ad, u, tau, p, work, target)

@@ -121,6 +121,11 @@ class ProtocolRunner:
         self.work_velocity: float | None = None
 
     # -- the loop's interface --------------------------------------------------------------
+    @property
+    def seeking(self) -> bool:
+        """The target is the seeker's (seeking or tracking), not a protocol's own velocity."""
+        return self.mode in (SEEK, TRACK)
+
     def begin(self, w0: float) -> None:
         """Start at the machine's velocity (bumpless), in the first phase."""
         self.filter.reset(w0)

@@ -92,6 +92,7 @@ class Seeker:
     """Base: the bounds, the reference outputs and the record every seeker keeps."""
 
     kind = "seeker"
+    seeking = True  # as a loop's reference, its target is always its own (the runner's may not be)
     __slots__ = (
         "cfg", "dt", "lo", "hi", "outer", "wd", "ad", "jd", "target", "phase", "done",
         "reason", "evaluations", "bracket", "bracket0", "optimum", "optimum_power",
