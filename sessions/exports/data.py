@@ -10,8 +10,11 @@ Times ``t`` are seconds since the session started.
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -125,3 +128,18 @@ def totals(cols: Columns, start: float | None = None, end: float | None = None) 
         mean_w=float(np.nanmean(w)),
         peak_w=float(np.nanmax(w)),
     )
+
+
+def write_atomically(path: str | Path, data: bytes) -> int:
+    """``data`` to ``path`` through a temporary file in the same folder (a reader never sees
+    a partial file); returns its size in bytes."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return len(data)

@@ -20,8 +20,6 @@ transients, a handle turned backwards) are written as 0, as a power meter report
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -42,6 +40,7 @@ from sessions.exports.data import (
     sample_period,
     telemetry_columns,
     totals,
+    write_atomically,
 )
 from sessions.summary import SessionSummary
 from sessions.units import RPM_PER_RAD_S
@@ -403,13 +402,4 @@ def write_fit(
 ) -> int:
     """:func:`encode_fit` to ``path``, atomically (never a partial file); returns its size."""
     data = encode_fit(start, telemetry, phases, **kwargs)
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return len(data)
+    return write_atomically(path, data)

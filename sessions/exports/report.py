@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -45,6 +43,7 @@ from sessions.exports.data import (
     Phase,
     check_phases,
     telemetry_columns,
+    write_atomically,
 )
 from sessions.profile import ProfileFit
 from sessions.store.decimate import minmax_pairs
@@ -522,13 +521,4 @@ def render_report(d: ReportData) -> bytes:
 def write_report(path: str | Path, d: ReportData) -> int:
     """:func:`render_report` to ``path``, atomically; returns its size in bytes."""
     data = render_report(d)
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return len(data)
+    return write_atomically(path, data)
