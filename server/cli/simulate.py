@@ -80,11 +80,11 @@ def run(args: argparse.Namespace) -> int:
         + (f"{t1:.1f} s" if t1 is not None else "never")
         + f"   evaluations = {len(figures['evaluations'])}"
     )
-    regret = figures["regret"]
+    regret, lo, hi = figures["regret"], figures["target_min"], figures["target_max"]
     print(
         "           regret = "
         + (f"{100 * regret:.2f} %" if regret is not None else "-")
-        + f"   targets {figures['target_min']:.3f}..{figures['target_max']:.3f} rad/s"
+        + (f"   targets {lo:.3f}..{hi:.3f} rad/s" if lo is not None else "   no seeker targets")
         + (f"   AT THE {figures['at_bound'].upper()} BOUND" if figures["at_bound"] else "")
     )
     print(
