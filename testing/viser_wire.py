@@ -135,16 +135,18 @@ class RawClient:
         self.close()
 
 
+# a browser's wire, as viser speaks it: its subprotocol, frames of any size, no compression
+_WIRE: dict[str, Any] = {"subprotocols": [SUBPROTOCOL], "max_size": None, "compression": None}
+
+
 def open_proxy(url: str, headers: dict[str, str], timeout: float = 10.0) -> RawClient:
     """Through the login-checking proxy (``ws://host:port/dashboard``) with a login's
     headers (cookie and Origin, or a bearer token)."""
     ws = connect(
         url,
-        subprotocols=[SUBPROTOCOL],  # type: ignore[list-item]
         additional_headers=headers,
-        max_size=None,
-        compression=None,
         open_timeout=timeout,
+        **_WIRE,
     )
     return RawClient(ws)
 
@@ -154,11 +156,9 @@ def open_unix(path: str, headers: dict[str, str] | None = None, timeout: float =
     ws = unix_connect(
         path,
         uri="ws://localhost/",
-        subprotocols=[SUBPROTOCOL],  # type: ignore[list-item]
         additional_headers=headers,
-        max_size=None,
-        compression=None,
         open_timeout=timeout,
+        **_WIRE,
     )
     return RawClient(ws)
 
@@ -167,11 +167,9 @@ def open_tcp(url: str, headers: dict[str, str] | None = None, timeout: float = 1
     """Straight to a viser server on a TCP port, as a local process would."""
     ws = connect(
         url,
-        subprotocols=[SUBPROTOCOL],  # type: ignore[list-item]
         additional_headers=headers,
-        max_size=None,
-        compression=None,
         open_timeout=timeout,
+        **_WIRE,
     )
     return RawClient(ws)
 
