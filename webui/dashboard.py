@@ -105,6 +105,10 @@ class Dashboard:
             log.error("dashboard client %s: not vouched for by the proxy", client.client_id)
             self._drop(client.client_id)
             return
+        # The users as the store has them now (the watch skips re-reads while no dashboard is
+        # open); if they change while this one is built, a re-read may have missed it.
+        self.ctx.load_users()
+        options = self.ctx.user_options()
         try:
             view = ClientView(client, who, self.ctx)
         except Exception:  # (a half-built dashboard is worse than none: the page reconnects)
@@ -112,6 +116,8 @@ class Dashboard:
             self._drop(client.client_id)
             return
         self.ctx.add_view(client.client_id, view)
+        if self.ctx.user_options() != options:
+            view.users_changed(self.ctx.user_options())
         log.info(
             "dashboard client %s (%s, %s) built in %.0f ms",
             client.client_id,
