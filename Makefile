@@ -23,9 +23,15 @@ system:
 lint: setup
 	$(BIN)/ruff check .
 
-## test: everything, from a fresh machine
+## test: everything, from a fresh machine: the rooms on $(TEST_WORKERS) parallel workers (one
+## module per worker at a time), then the tests timed where it happens and the Docker image,
+## alone (docs/testing.md, "Running the suite"); both parts always run, either failing fails it
+TEST_WORKERS ?= 3
 test: setup system lint
-	$(BIN)/python -m pytest
+	@status=0; \
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile -m "not realtime and not docker" || status=1; \
+	$(BIN)/python -m pytest -m "realtime or docker" || status=1; \
+	exit $$status
 
 ## demo: the server with a simulated machine and users; open http://127.0.0.1:8000/
 demo: setup

@@ -20,6 +20,8 @@ import pytest
 from testing.flood import MB, raw_request, request_head
 from testing.server import PASSWORDS, ServerProcess, start_server
 
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> ServerProcess:

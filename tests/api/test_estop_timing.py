@@ -20,6 +20,8 @@ from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from testing.live import EMULATED_KT, wait_for
 from testing.server import ServerProcess, start_server
 
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+
 ZERO_WITHIN = 0.030  # s from the request sent to zero torque at the device
 
 

@@ -18,6 +18,8 @@ import pytest
 
 from testing.server import start_server
 
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+
 AT = 8.0  # s into a session the worker dies (after the 1 s one, its ~4 s wind-down, its ramp)
 
 

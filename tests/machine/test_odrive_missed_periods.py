@@ -25,6 +25,8 @@ from sessions.worker import Worker, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, odrive, scenario
 
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+
 RATE = 500.0  # Hz: the rate the pty link holds on a loaded VM (docs/live-machine.md)
 DT = 1.0 / RATE
 

@@ -14,11 +14,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, odrive, scenario, wait_for
+
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
 
 ZERO_WITHIN = 0.030  # s from the e-stop asked to zero torque at the plant / the device
 PUSHING = 50  # non-zero setpoints the device must have had before (it was driving)

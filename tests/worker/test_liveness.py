@@ -17,6 +17,8 @@ from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, scenario, wait_for
 
+pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+
 
 def _start(duration: float = 30.0) -> tuple[Worker, object]:
     worker = Worker(options=WorkerOptions())
