@@ -22,6 +22,8 @@ from sessions.worker import Worker, WorkerError, WorkerOptions
 from testing.live import follow, odrive, scenario, wait_for
 
 CFG = parse_session_config({"duration": 30.0})
+pytestmark = pytest.mark.realtime  # a 20 ms reply timeout: alone, after the parallel rooms
+
 TIMEOUT = 0.02
 
 

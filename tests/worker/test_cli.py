@@ -120,6 +120,7 @@ def test_ctrl_c_stops_with_zero_torque(quick):
     assert not os.path.exists(f"/proc/{worker_pid}")
 
 
+@pytest.mark.realtime  # a time bound on a process's start: alone, after the parallel rooms
 @pytest.mark.parametrize(
     ("drive", "words"),
     [
