@@ -187,6 +187,24 @@ def test_trainers_and_viewers_get_their_own_dashboards(app_client: TestClient) -
             assert views[0].who.role == ACCOUNTS[login][0]
 
 
+def test_a_dashboard_opened_after_a_user_was_added_elsewhere_lists_them(
+    app_client: TestClient,
+) -> None:
+    """A user added where this web process is not told (another process on the store) while
+    no dashboard is open: the next dashboard's pickers list them from their first frame (the
+    picker was built from the users read at start-up, and a re-read during the build missed
+    the new view: the user never appeared)."""
+    runtime = app_client.app.state.runtime  # type: ignore[attr-defined]
+    assert not runtime.dashboard.ctx.views()  # (the watch re-reads nothing while none is open)
+    user = runtime.store.users.create("Added elsewhere")
+    with proxied(app_client, "coach") as ws:
+        ws.receive_bytes()
+        ws.send_bytes(encode(CAMERA))
+        got = elements(ws)
+    for picker in ("User", "History of"):
+        assert f"Added elsewhere (#{user.id})" in got[picker]["props"]["options"], picker
+
+
 def test_one_account_opens_a_bounded_number_of_dashboards(app_client: TestClient) -> None:
     from webui.proxy import MAX_PER_ACCOUNT
 
