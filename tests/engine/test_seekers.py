@@ -320,3 +320,24 @@ def test_a_sharp_top_is_within_99pct_of_its_power_from_10_s_on(seed: int) -> Non
     assert r.user.power_ratio(np.array([2.9]), np.array([0.0]))[0] < 0.99
     s = score(r)
     assert s["t_99"] is not None and s["t_99"] <= 10.0
+
+
+def test_the_dither_grows_while_the_tracker_knows_its_optimum_poorly() -> None:
+    # The dither is what shows the slope: while the Kalman filter's σ of θ is k times the
+    # precision asked, the amplitude the noise asks for grows k-fold (within the cost cap),
+    # rather than staying at what a well-known θ would need (a θ 4 % off a sharp top stayed
+    # there for a minute behind a 0.8 % dither).
+    from sessions.seekers.regression import Rows
+    from sessions.seekers.tracker import MIN_DITHER, PRECISION, Tracker
+
+    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 2.5, 6.0]}}).seeker
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    seeker.optimum_power = 12.0
+    tracker = Tracker(seeker, 2.5, -30.0, 0.0, Rows(1e-3), noise=(0.25, 8.0))
+    cap = tracker._cap()
+    known = tracker._wanted()
+    assert MIN_DITHER * 2.5 < known < cap / 2.0  # the noise's, neither floor nor cap
+    tracker.var = (2.0 * PRECISION * 2.5) ** 2
+    assert tracker._wanted() == pytest.approx(2.0 * known)
+    tracker.var = (10.0 * PRECISION * 2.5) ** 2
+    assert tracker._wanted() == pytest.approx(cap)
