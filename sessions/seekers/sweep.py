@@ -24,7 +24,8 @@ multiplicative) regressed out, so the candidate can move all the time.
    v ± sqrt(0.02 p/|p''|) (3-30 % of v), re-centred on the vertex after each pass: the
    candidate stays within the 99 % band while the estimate sharpens. Converged once
    ½|p''|(2σv)² ≤ ``power_tol``·p (the optimum known to within that fraction of the power at
-   two standard errors), or after MAX_REFINE passes on the best estimate.
+   two standard errors), or after MAX_REFINE passes on the best estimate. A top fitted to
+   fewer than TOP_ROWS rows (a locate leg crossing it fast) needs one refine pass first.
 4. **Track.** The candidate goes to the vertex and a :class:`~sessions.seekers.tracker.Tracker`
    follows it (``track``, the default) with the curvature and noise the sweep measured.
 
@@ -59,6 +60,9 @@ TOP = 0.3  # the top fit's half-width, fraction of the velocity …
 NARROWEST = 0.08  # … narrowed down to this on a sharp top
 MISFIT = 4.0  # |t| of an x³ or x⁴ term above which the parabola does not fit that wide
 MAX_REFINE = 6
+TOP_ROWS = 150  # a top from fewer rows (3 s: a couple of revolutions) needs a refine pass:
+# a locate leg crossing it fast gives a standard error the ripple and the noise's correlation
+# over so few rows make far too small (a flat top read as the sharpest a person has)
 FAST = 4.0  # the most a leg speeds up on a steep flank
 STEEP = (0.15, 0.45)  # elasticities from which a leg speeds up, and at which it is fastest
 ACC_GATE = 0.3  # rows start once |ad| is below this fraction of w per second
@@ -362,8 +366,9 @@ class SweepSeeker(Seeker):
         if f is not None and math.isfinite(se):
             c2 = abs(f.curvature[0])
             loss = 0.5 * c2 * (2.0 * se) ** 2 / max(f.value(v), 1e-12)
-            if loss <= cfg.power_tol or self.passes >= MAX_REFINE:
-                self.reason = "optimum located" if loss <= cfg.power_tol else "best estimate"
+            located = loss <= cfg.power_tol and (self.passes > 0 or f.n >= TOP_ROWS)
+            if located or self.passes >= MAX_REFINE:
+                self.reason = "optimum located" if located else "best estimate"
                 self.converged_at(t, v, f.value(v))
                 self._go(v)
                 return

@@ -9,6 +9,7 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   of p(w) can be seen. A is as small as the noise allows: the amplitude at which the slope
   over ``track_memory`` pins θ down to PRECISION (2 %), from the fit's own residual noise,
   between 0.8 % of θ (less would drown in what the model misses) and ``dither``·θ (5 %),
+  and more, in proportion, while the Kalman filter below knows θ worse than PRECISION,
   and never more than loses DITHER_COST (0.3 %) of the power at its extremes on the
   measured curvature (½|p''|A² ≤ 0.003 p). On average it costs half that, well within the
   1 % the issue allows;
@@ -118,6 +119,8 @@ class Tracker:
         sigma, inflate = self.noise
         n = self.memory / self.rows.n_block / self.owner.dt  # rows in the memory
         want = math.sqrt(2.0 * inflate / n) * sigma / (-curv * PRECISION * theta)
+        # the filter's own uncertainty: while θ is known worse than PRECISION, more dither
+        want *= max(1.0, math.sqrt(self.var) / (PRECISION * theta))
         return min(max(want, MIN_DITHER * theta), max(top, MIN_DITHER * theta))
 
     def _cap(self) -> float:
