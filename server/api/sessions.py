@@ -83,7 +83,7 @@ def hint(s: SessionRecord) -> str | None:
 
 @router.get(
     "/{session_id}/phases", response_model=list[PhaseRecord],
-    summary="The protocol's phases: spans (s), powers (W), work (J), optimum (rad/s), fits",
+    summary="The protocol's phases: spans (s), powers (W), work (J), optimum (rad/s) and its bound",
 )  # fmt: skip
 async def session_phases(session_id: Id, store: StoreDep, _: Viewer) -> list[PhaseRecord]:
     return await asyncio.to_thread(_phases, store, session_id)

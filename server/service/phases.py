@@ -42,7 +42,7 @@ def spans(store: Store, session_id: int) -> list[PhaseSpan]:
     span = store.telemetry.span(session_id)
     dt = 1.0 / float(record.config.get("rate", 1000.0))
     end = (span.t1 + dt) if span.t1 is not None else 0.0
-    return phase_spans(stored_stages(store, session_id), end, record.optimum_w)
+    return phase_spans(stored_stages(store, session_id), end, record.optimum_w, record.at_bound)
 
 
 def summarize_phases(
