@@ -10,7 +10,12 @@
   the preference is the account's (REST reads it back);
 - History: the progress across sessions with W/kg (the user's body mass is known), and the
   session's report (PDF) and activity (FIT) fetched through the page's own login, refused
-  without it.
+  without it; each phase's stored summary as a table row equal to REST's (formatted here);
+  and a profile session's τ–v and P–v charts holding the stored fit and its step means
+  (read from the page's own uPlot objects). The profile session is written to the store as
+  the pump writes one (its phase row, then its summary with a real fit of a simulated Hill
+  person's steps, a phase name with markup in it): its telemetry is not needed to show it,
+  and a real profile phase would add half a minute.
 
 With ``ERGOSEEK_UPDATE_SCREENSHOT=1`` the protocol editor's screenshot and the report's
 first page (pdftoppm) replace ``docs/img/protocol-editor.png`` and ``docs/img/report.png``.
@@ -147,6 +152,8 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     activity = context.request.get(server.url + fit.get_attribute("href"))
     assert activity.status == 200 and activity.body()[8:12] == b".FIT"
     assert httpx.get(server.url + report.get_attribute("href")).status_code == 401
+    check_phase_rows(page, phases)
+    check_profile_charts(page, server)
     if os.environ.get("ERGOSEEK_UPDATE_SCREENSHOT"):
         shutil.copy(tmp_path / "protocol-editor.png", DOCS / "protocol-editor.png")
         (tmp_path / "report.pdf").write_bytes(pdf.body())
@@ -154,3 +161,110 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
         cmd = ["pdftoppm", "-png", "-r", "80", "-singlefile", pdf_file, str(DOCS / "report")]
         subprocess.run(cmd, check=True)
     context.close()
+
+
+TABLE_ROWS = """() => [...document.querySelectorAll('table tr')]
+    .map(tr => [...tr.cells].map(c => c.innerText.replace(/\u2060/g, '').trim()))"""
+
+
+def check_phase_rows(page: Any, phases: list[dict[str, Any]]) -> None:
+    """Each stored phase is a row of History's table, its figures as REST has them (rad/s)."""
+
+    def row(p: dict[str, Any]) -> list[str]:
+        opt = "—" if p["optimum_w"] is None else f"{p['optimum_w']:.3f} rad/s"
+        if p["at_bound"] is not None:
+            opt = (
+                ("≥ " if p["at_bound"] == "upper" else "≤ ")
+                + opt
+                + f" (at the {p['at_bound']} bound)"
+            )
+        figures = (p["t_end"] - p["t_start"], p["mean_power"], p["peak_power"], p["work"])
+        spec = (".1f", ".2f", ".2f", ".1f")
+        cells = [format(v, f) for v, f in zip(figures, spec, strict=True)]
+        return [str(p["position"] + 1), p["name"] or p["kind"], p["kind"], *cells, opt]
+
+    wanted = [row(p) for p in phases]
+    deadline = time.monotonic() + PAGE_WAIT_MS / 1e3
+    while True:
+        rows = page.evaluate(TABLE_ROWS)
+        if all(w in rows for w in wanted) or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    for w in wanted:
+        assert w in rows, (w, rows)
+
+
+PROFILE_PHASE = "spectrum <b>8</b> | *K*"
+UPLOTS = """() => Object.values(window.__viserTestpoints?.uplots ?? {}).map(({chart}) => ({
+    title: chart.root.querySelector('.u-title')?.textContent ?? '',
+    data: chart.data.map(col => Array.from(col, v => Number.isFinite(v) ? v : null)),
+    created: chart.root.isConnected}))"""
+
+
+def stored_profile_session(server: DemoServer, user_id: int) -> tuple[int, dict[str, Any]]:
+    """A session with one profile phase, stored as the pump stores one, with a real fit."""
+    from sessions.config import SessionConfig, UserConfig
+    from sessions.people import SimulatedUser
+    from sessions.profile import StepSamples, fit_profile, plan_profile
+    from sessions.protocol.analysis import PhaseResult
+
+    person = SimulatedUser(UserConfig(**HILL, noise=0.03), 1e-3, 4)
+    steps, q = [], 0.0
+    for st in plan_profile((1.0, 6.0), 6, 4.0).steps:
+        n = round((st.end - st.settled) * 1000)
+        tau = np.empty(n)
+        for k in range(n):
+            tau[k] = person.torque(q, st.velocity)
+            person.advance(1e-3)
+            q += st.velocity * 1e-3
+        steps.append(StepSamples(st.velocity, tau, np.full(n, st.velocity)))
+    fit = fit_profile(steps).to_dict()
+    cfg = SessionConfig.model_validate({"protocol": {"phases": [{"kind": "profile", "count": 6}]}})
+    with open_store(server.database_url, upgrade=False) as store:
+        sid = store.sessions.start(user_id, cfg).id
+        store.phases.begin(sid, 0, "profile", PROFILE_PHASE, 0.0)
+        store.sessions.finish(sid, "completed")
+        result = PhaseResult(
+            index=0, kind="profile", name=PROFILE_PHASE, start=0.0, end=30.0, mean_power=2.0,
+            peak_power=3.0, work=60.0, mean_w=3.0, optimum_w=None, detail={"profile": fit},
+        )  # fmt: skip
+        store.phases.summarize(sid, result)
+    return sid, fit
+
+
+def check_profile_charts(page: Any, server: DemoServer) -> None:
+    with server.client() as api:
+        user = api.post("/api/v1/users", json={"name": "Profile person"}).json()
+    sid, fit = stored_profile_session(server, user["id"])
+    label = f"Profile person (#{user['id']})"
+    page.get_by_role("combobox", name="History of", exact=True).click()  # listed once it is
+    page.get_by_role("option", name=label, exact=True).click()
+    page.get_by_role("combobox", name="Session", exact=True).click()
+    page.get_by_role("option", name=re.compile(rf"^#{sid} ")).click()
+    wait_text(
+        page, re.escape(f"Profile {PROFILE_PHASE} (") + rf"{fit['model']} fit, 95 % intervals\)"
+    )
+    assert page.locator("b", has_text="8").count() == 0  # the stored name stayed text
+    curve = fit["curve"]
+    x = sorted(curve["w"] + [st["w"] for st in fit["steps"]])
+    measured = {st["w"]: st for st in fit["steps"]}
+    want = {
+        "torque": (curve["tau"], [measured[w]["tau"] for w in sorted(measured)]),
+        "power": (curve["power"], [measured[w]["tau"] * w for w in sorted(measured)]),
+    }
+    deadline = time.monotonic() + PAGE_WAIT_MS / 1e3
+    while True:
+        charts = {
+            c["title"]: c for c in page.evaluate(UPLOTS) if c["title"].startswith("profile: ")
+        }
+        if len(charts) == 2 and all(len(c["data"][0]) == len(x) for c in charts.values()):
+            break
+        assert time.monotonic() < deadline, charts.keys()
+        time.sleep(0.2)
+    for title, chart in charts.items():
+        assert title.endswith("vs velocity [rad/s]")
+        fitted, points = want["torque" if "torque" in title else "power"]
+        xs, line, _low, _high, dots = chart["data"]
+        assert xs == pytest.approx(x, rel=1e-12)  # rad/s: this account's unit now
+        assert [v for v in line if v is not None] == pytest.approx(fitted, rel=1e-12)
+        assert [v for v in dots if v is not None] == pytest.approx(points, rel=1e-12)

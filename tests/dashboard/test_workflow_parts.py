@@ -11,11 +11,13 @@ from server.service.session import ActiveSession
 from sessions.config import parse_session_config
 from sessions.protocol.config import Protocol
 from sessions.protocol.stage import Stage
+from sessions.store import PhaseRecord
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
 from webui.charts import span_range
 from webui.escape import WORD_JOINER
 from webui.feed import LiveState
+from webui.tabs.phases import phases_markdown, profile_fit, profile_series
 from webui.tabs.protocol import fits_form, phase_markdown
 from webui.units import Units, power_text
 
@@ -107,3 +109,56 @@ def test_which_protocols_the_form_can_show() -> None:
     assert fits_form(p("seek", "profile", "train"))
     assert not fits_form(p("train", "warmup"))  # another order: runs as stored
     assert not fits_form(p("warmup", "train", "train"))  # a kind twice
+
+
+def _phase(position: int, kind: str, name: str, **kw: object) -> PhaseRecord:
+    base = {"id": position + 1, "session_id": 1, "position": position, "kind": kind,
+            "name": name, "t_start": 10.0 * position, "t_end": 10.0 * position + 7.5,
+            "planned_end": None, "mean_power": 2.345, "peak_power": 4.5, "work": 17.59,
+            "mean_w": 3.0, "optimum_w": None, "detail": {}}  # fmt: skip
+    return PhaseRecord.model_validate(base | kw)
+
+
+def test_each_phases_summary_as_a_table_with_its_bound() -> None:
+    evil = "<img src=x onerror=alert(1)>|**b**"
+    phases = [
+        _phase(0, "warmup", "warm-up"),
+        _phase(1, "seek", evil, optimum_w=3.0, at_bound="upper"),
+        _phase(2, "train", "", optimum_w=2.5, t_end=None, mean_power=None),
+    ]
+    out = str(phases_markdown(phases, Units("rad/s")))
+    assert "<img" not in out and "|**b**" not in out  # the stored name is text, not markup
+    rows = [r for r in text(out).splitlines() if r.startswith("| ") and "---" not in r]
+    assert rows[1] == "| 1 | warm-up | warmup | 7.5 | 2.35 | 4.50 | 17.6 | — |"
+    assert rows[2] == f"| 2 | {evil.replace('**', '')} | seek | 7.5 | 2.35 | 4.50 | 17.6 | " \
+        "≥ 3.000 rad/s (at the upper bound) |"  # fmt: skip
+    assert rows[3] == "| 3 | train | train | — | — | 4.50 | 17.6 | 2.500 rad/s |"
+    assert "\n\n≥ / ≤: the search ended at the bracket" in out  # after the table, not in it
+    inside = text(phases_markdown(phases[:1], Units("rpm")))
+    assert "≥" not in inside and "bound" not in inside
+    assert text(phases_markdown([], Units())) == "No protocol phases stored for this session."
+
+
+def test_the_profile_charts_hold_the_fit_and_the_steps_it_was_fitted_to() -> None:
+    fit = {
+        "model": "linear", "confidence": 0.95,
+        "curve": {"w": [0.0, 2.0, 4.0], "tau": [3.0, 2.0, 1.0], "tau_low": [2.8, 1.9, 0.9],
+                  "tau_high": [3.2, 2.1, 1.1], "power": [0.0, 4.0, 4.0],
+                  "power_low": [0.0, 3.8, 3.6], "power_high": [0.0, 4.2, 4.4]},
+        "steps": [{"velocity": 1.0, "w": 1.01, "tau": 2.6, "tau_se": 0.01, "samples": 9},
+                  {"velocity": 3.0, "w": 2.98, "tau": 1.4, "tau_se": 0.01, "samples": 9}],
+    }  # fmt: skip
+    data = profile_series(fit, Units("rpm"))
+    x, tau, low, high, measured = data["tau"]
+    np.testing.assert_allclose(x, np.array([0.0, 1.01, 2.0, 2.98, 4.0]) * RPM)
+    np.testing.assert_array_equal(tau, [3.0, np.nan, 2.0, np.nan, 1.0])
+    np.testing.assert_array_equal(low, [2.8, np.nan, 1.9, np.nan, 0.9])
+    np.testing.assert_array_equal(high, [3.2, np.nan, 2.1, np.nan, 1.1])
+    np.testing.assert_array_equal(measured, [np.nan, 2.6, np.nan, 1.4, np.nan])
+    p = data["power"]
+    np.testing.assert_allclose(p[4], [np.nan, 2.6 * 1.01, np.nan, 1.4 * 2.98, np.nan])
+    np.testing.assert_array_equal(p[1], [0.0, np.nan, 4.0, np.nan, 4.0])
+    fit_phase = _phase(0, "profile", "spectrum", detail={"profile": fit})
+    assert profile_fit([fit_phase, _phase(1, "cooldown", "cool")]) == (fit_phase, fit)
+    failed = _phase(0, "profile", "spectrum", detail={"profile": None, "profile_error": "x"})
+    assert profile_fit([failed]) is None
