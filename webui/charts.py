@@ -8,6 +8,7 @@ rate), and a past session is read from the store decimated to :data:`HISTORY_POI
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -146,6 +147,61 @@ def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scal
     }
 
 
+# Minimum y spans of the time charts (their units): a steady signal is drawn flat in a range
+# this wide, not magnified until uPlot's 3-decimal tick labels repeat ("3.095" three times).
+VELOCITY_SPAN = 0.5  # rad/s
+TORQUE_SPAN = 0.5  # N·m
+POWER_SPAN = 1.0  # W
+WORK_SPAN = 1.0  # J
+
+
+def finite_extent(*ys: np.ndarray) -> tuple[float, float] | None:
+    """(min, max) over the finite values of ``ys``; None without any."""
+    lo, hi = math.inf, -math.inf
+    for y in ys:
+        finite = y[np.isfinite(y)]
+        if len(finite):
+            lo, hi = min(lo, float(finite.min())), max(hi, float(finite.max()))
+    return (lo, hi) if lo <= hi else None
+
+
+class SpanClass:
+    """A time chart's y range, by class: auto (uPlot's own) while the data spans at least
+    ``min_span``; below that, a fixed range of :func:`span_range`, kept while the data stays
+    inside it. :meth:`scales` returns new scales only when the class or the fixed range
+    changes (None otherwise), so a chart's scales are sent only then, never each frame:
+    the frame's message stays the data alone, and viser's client keeps its chart."""
+
+    def __init__(self, min_span: float) -> None:
+        self.min_span = min_span
+        self.fixed: tuple[float, float] | None = None  # None: auto
+
+    def wanted(self, *ys: np.ndarray) -> tuple[float, float] | None:
+        extent = finite_extent(*ys)
+        if extent is None:
+            return self.fixed  # nothing to range: keep what is shown
+        lo, hi = extent
+        if self.fixed is not None and self.fixed[0] <= lo and hi <= self.fixed[1]:
+            return self.fixed
+        if 1.1 * (hi - lo) < self.min_span:  # padded 5 % each side, as span_range pads
+            return span_range(*ys, min_span=self.min_span)
+        return None
+
+    def scales(self, *ys: np.ndarray) -> dict[str, up.Scale] | None:
+        wanted = self.wanted(*ys)
+        if wanted == self.fixed:
+            return None
+        self.fixed = wanted
+        return time_scales(wanted)
+
+
+def time_scales(y_range: tuple[float, float] | None) -> dict[str, up.Scale]:
+    """A time chart's scales: seconds on x, y auto or fixed."""
+    if y_range is None:
+        return {"x": up.Scale(time=False), "y": up.Scale(auto=True)}
+    return {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
+
+
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
     return up.Series(label=label, stroke=stroke, width=1.5, **extra)  # type: ignore[typeddict-item]
 
@@ -169,7 +225,32 @@ def time_chart(
     )
 
 
-class LiveCharts:
+class SpannedCharts:
+    """The four time charts (velocity, torque, power, passivity), each with its
+    :class:`SpanClass`; :meth:`plot` sends a chart's scales only when its class changes."""
+
+    velocity: viser.GuiUplotHandle
+    torque: viser.GuiUplotHandle
+    power: viser.GuiUplotHandle
+    passivity: viser.GuiUplotHandle
+
+    def _spans(self) -> None:
+        self.spans = {
+            "velocity": SpanClass(VELOCITY_SPAN),
+            "torque": SpanClass(TORQUE_SPAN),
+            "power": SpanClass(POWER_SPAN),
+            "passivity": SpanClass(WORK_SPAN),
+        }
+
+    def plot(self, name: str, data: tuple[np.ndarray, ...]) -> None:
+        chart = getattr(self, name)
+        scales = self.spans[name].scales(*data[1:])
+        if scales is not None:
+            chart.scales = scales
+        chart.data = data
+
+
+class LiveCharts(SpannedCharts):
     """Velocity, torque, power and passivity over the live window."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
@@ -181,6 +262,7 @@ class LiveCharts:
         )
         self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
         self.passivity = time_chart(gui, "passivity W(t) = ∫τw dt [J]", (("W", "#495057"),))
+        self._spans()
         self._measured: bool | None = None
 
     def label_user_torque(self, measured: bool) -> None:
@@ -196,13 +278,13 @@ class LiveCharts:
 
     def show(self, window: LiveWindow) -> None:
         t, wd, w, u, tau, p, W = window.series("t", "wd", "w", "u_out", "tau", "p", "W")
-        self.velocity.data = (t, wd, w)
-        self.torque.data = (t, u, tau)
-        self.power.data = (t, p)
-        self.passivity.data = (t, W)
+        self.plot("velocity", (t, wd, w))
+        self.plot("torque", (t, u, tau))
+        self.plot("power", (t, p))
+        self.plot("passivity", (t, W))
 
 
-class SessionCharts:
+class SessionCharts(SpannedCharts):
     """A past session, from the store's decimated telemetry (the same four charts)."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
@@ -214,16 +296,17 @@ class SessionCharts:
         )
         self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
         self.passivity = time_chart(gui, "passivity W(t) [J]", (("W", "#495057"),))
+        self._spans()
 
     def show(self, columns: dict[str, np.ndarray]) -> None:
         def c(name: str) -> np.ndarray:
             return np.ascontiguousarray(columns.get(name, np.zeros(0)), dtype=np.float64)
 
         t = c("t")
-        self.velocity.data = plottable((t, c("wd"), c("w")))
-        self.torque.data = plottable((t, c("u"), c("tau")))
-        self.power.data = plottable((t, c("p")))
-        self.passivity.data = plottable((t, c("W")))
+        self.plot("velocity", plottable((t, c("wd"), c("w"))))
+        self.plot("torque", plottable((t, c("u"), c("tau"))))
+        self.plot("power", plottable((t, c("p"))))
+        self.plot("passivity", plottable((t, c("W"))))
 
     def clear(self) -> None:
         self.show({})

@@ -268,3 +268,92 @@ def check_profile_charts(page: Any, server: DemoServer) -> None:
         assert xs == pytest.approx(x, rel=1e-12)  # rad/s: this account's unit now
         assert [v for v in line if v is not None] == pytest.approx(fitted, rel=1e-12)
         assert [v for v in dots if v is not None] == pytest.approx(points, rel=1e-12)
+
+
+SPAN_POLL = """() => Object.values(window.__viserTestpoints?.uplots ?? {}).map(
+  ({chart, createCount}) => ({
+    title: chart.root.querySelector('.u-title')?.textContent ?? '', created: createCount,
+    y: [chart.scales.y.min, chart.scales.y.max], x_max: chart.scales.x.max,
+    last: chart.data[0][chart.data[0].length - 1], ticks: chart.axes[1]._values ?? [],
+    w: Array.from(chart.data[2] ?? [], v => Number.isFinite(v) ? v : null)}))"""
+STAGES = ((0.0, 3.095, 1e-4), (2.5, 2.0, 1.0), (5.0, 1.2, 1e-4))  # from t: level, zigzag/sine
+
+
+def synthetic_velocity(t: float) -> float:
+    _, level, swing = next(s for s in reversed(STAGES) if t >= s[0])
+    if swing > 0.1:
+        return level + swing * math.sin(2.0 * math.pi * t)
+    return level + swing * (-1.0) ** round(t * 50.0)
+
+
+def test_the_live_charts_keep_their_minimum_span_and_keep_drawing(browser: Any) -> None:
+    """The dashboard's own LiveCharts in viser's client, fed 50 samples/s of a steady velocity
+    (3.095 rad/s ± 1e-4), then a wide one (2 ± 1 rad/s), then steady again at 1.2 rad/s,
+    through a 1.5 s live window: a steady signal is drawn in a range at least VELOCITY_SPAN
+    wide whose tick labels all differ, a wide one in uPlot's own range; the chart is never
+    rebuilt and draws every new sample (its x range ends at the newest one)."""
+    import socket
+    import threading
+
+    import viser
+
+    from sessions.telemetry import RECORD_INDEX, RECORD_WIDTH
+    from webui.charts import VELOCITY_SPAN, LiveCharts, LiveWindow
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    srv = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+    charts, window = LiveCharts(srv.gui), LiveWindow(seconds=1.5)
+    done, sent = threading.Event(), []
+
+    def feed() -> None:
+        t, dt = 0.0, 0.02
+        while not done.wait(dt) and t < 7.5:
+            rec = np.zeros((1, RECORD_WIDTH))
+            w = synthetic_velocity(t)
+            rec[0, [RECORD_INDEX["t"], RECORD_INDEX["w"], RECORD_INDEX["wd"]]] = t, w, w
+            rec[0, RECORD_INDEX["session"]] = 1.0
+            window.extend(rec)
+            charts.show(window)
+            sent.append(t)
+            t += dt
+
+    page = browser.new_page()
+    try:
+        page.goto(f"http://127.0.0.1:{port}/")
+        page.wait_for_function("() => Object.keys(window.__viserTestpoints?.uplots ?? {}).length")
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        polls = []
+        while feeder.is_alive():
+            velocity = next(
+                c for c in page.evaluate(SPAN_POLL) if c["title"].startswith("velocity")
+            )
+            polls.append((sent[-1] if sent else 0.0, velocity))
+            time.sleep(0.15)
+    finally:
+        done.set()
+        page.close()
+        srv.stop()
+    by_stage: dict[int, list[dict[str, Any]]] = {0: [], 1: [], 2: []}
+    for at, c in polls:
+        ws = [v for v in c["w"] if v is not None]
+        if not ws or c["last"] < 0.5:  # no sample drawn yet (the empty chart's NaN pair)
+            continue
+        stage = max(i for i, s in enumerate(STAGES) if c["last"] >= s[0])
+        settled = c["last"] - 1.5 >= STAGES[stage][0]  # the window holds this stage only
+        assert c["created"] == 1  # never rebuilt
+        assert c["x_max"] == pytest.approx(c["last"], abs=0.1)  # drawn up to the newest sample
+        assert at - c["last"] < 1.5  # and that sample is recent: new data keeps coming
+        assert len(set(c["ticks"])) == len(c["ticks"]) >= 2, c  # no repeated label
+        assert c["y"][0] <= min(ws) and max(ws) <= c["y"][1]  # nothing clipped
+        if settled:
+            by_stage[stage].append(c)
+    for stage in (0, 2):
+        assert by_stage[stage], polls
+        for c in by_stage[stage]:
+            assert c["y"][1] - c["y"][0] >= VELOCITY_SPAN
+    assert by_stage[1]
+    for c in by_stage[1]:  # wide: uPlot's own range around ±1, not a fixed 0.5
+        assert c["y"][0] <= 1.05 and c["y"][1] >= 2.95 and c["y"][1] - c["y"][0] < 4.0

@@ -14,7 +14,7 @@ from sessions.protocol.stage import Stage
 from sessions.store import PhaseRecord
 from sessions.worker.ring import INDEX as RING
 from sessions.worker.ring import WIDTH as RING_WIDTH
-from webui.charts import span_range
+from webui.charts import VELOCITY_SPAN, SpanClass, span_range
 from webui.escape import WORD_JOINER
 from webui.feed import LiveState
 from webui.tabs.phases import phases_markdown, profile_fit, profile_series
@@ -162,3 +162,59 @@ def test_the_profile_charts_hold_the_fit_and_the_steps_it_was_fitted_to() -> Non
     assert profile_fit([fit_phase, _phase(1, "cooldown", "cool")]) == (fit_phase, fit)
     failed = _phase(0, "profile", "spectrum", detail={"profile": None, "profile_error": "x"})
     assert profile_fit([failed]) is None
+
+
+def test_a_time_chart_gets_its_minimum_span_only_when_its_class_changes() -> None:
+    # the steady 3.095 rad/s with a 1e-4 zigzag: a fixed range at least 0.5 wide
+    # around it, whose three ticks are three different labels; sent once, not every frame
+    span = SpanClass(VELOCITY_SPAN)
+    steady = 3.095 + 1e-4 * (-1.0) ** np.arange(200)
+    first = span.scales(steady, steady + 2e-4)
+    assert first is not None and first["y"]["auto"] is False
+    lo, hi = first["y"]["range"]
+    assert hi - lo >= VELOCITY_SPAN and lo <= steady.min() and hi >= steady.max() + 2e-4
+    assert len({f"{x:.3f}" for x in np.linspace(lo, hi, 3)}) == 3
+    for k in range(50):  # frames of the same steady signal: nothing to send
+        assert span.scales(steady + 1e-5 * k) is None
+    # it drifts out of its range, still steady: a new fixed range, once
+    moved = span.scales(steady + 0.4)
+    assert moved is not None and moved["y"]["range"][0] <= steady.min() + 0.4
+    assert span.scales(steady + 0.4) is None
+    # a wide signal: uPlot's own range (auto), once; NaN (no value) ignored
+    wide = np.concatenate(([np.nan], np.linspace(0.0, 3.0, 100)))
+    auto = span.scales(wide)
+    assert auto is not None and auto["y"]["auto"] is True and "range" not in auto["y"]
+    assert span.scales(wide * 0.9) is None
+    # steady again: the minimum span again
+    again = span.scales(np.full(10, 1.2))
+    assert again is not None and again["y"]["range"][0] < 1.2 < again["y"]["range"][1]
+    # nothing to range (an empty chart's NaNs): what is shown stays
+    assert span.scales(np.full(2, np.nan)) is None and span.fixed == again["y"]["range"]
+
+
+def test_the_live_charts_send_scales_only_when_a_class_changes() -> None:
+    # the frame's message is the data alone: the velocity chart's scales are assigned once
+    # per class change (steady → wide → steady), not once per frame
+    import viser
+
+    from sessions.telemetry import RECORD_INDEX, RECORD_WIDTH
+    from webui.charts import LiveCharts, LiveWindow
+
+    srv = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        charts, window = LiveCharts(srv.gui), LiveWindow(seconds=1.0)
+        assigned, last = 0, charts.velocity.scales
+        for k in range(300):  # 6 s at 50 samples/s: steady, wide, steady
+            t = 0.02 * k
+            w = 2.0 + math.sin(2 * math.pi * t) if 2.0 <= t < 4.0 else 3.095 + 1e-4 * (-1) ** k
+            rec = np.zeros((1, RECORD_WIDTH))
+            rec[0, [RECORD_INDEX["t"], RECORD_INDEX["w"], RECORD_INDEX["wd"]]] = t, w, w
+            rec[0, RECORD_INDEX["session"]] = 1.0
+            window.extend(rec)
+            charts.show(window)
+            if charts.velocity.scales is not last:
+                assigned, last = assigned + 1, charts.velocity.scales
+        assert assigned == 3, assigned  # fixed, auto, fixed
+        assert charts.velocity.scales["y"]["auto"] is False
+    finally:
+        srv.stop()
