@@ -166,40 +166,54 @@ def finite_extent(*ys: np.ndarray) -> tuple[float, float] | None:
 
 
 class SpanClass:
-    """A time chart's y range, by class: auto (uPlot's own) while the data spans at least
-    ``min_span``; below that, a fixed range of :func:`span_range`, kept while the data stays
-    inside it. :meth:`scales` returns new scales only when the class or the fixed range
-    changes (None otherwise), so a chart's scales are sent only then, never each frame:
-    the frame's message stays the data alone, and viser's client keeps its chart."""
+    """A time chart's minimum y span, by class: none while the data spans at least
+    ``min_span`` (uPlot's own range); below that, a fixed range of :func:`span_range`, kept
+    while the data stays inside it.
+
+    The range reaches the chart as data, never as its scales: a last, invisible series
+    (:func:`span_pad`) holds the range's two ends, and uPlot's auto range takes them in. (In
+    viser 1.1.1's client a change of a chart's scales rebuilds the chart, and a chart rebuilt
+    under a stream of data can keep an old x range and stop showing the new data.) So the
+    frame stays one message, and the chart is never rebuilt."""
 
     def __init__(self, min_span: float) -> None:
         self.min_span = min_span
-        self.fixed: tuple[float, float] | None = None  # None: auto
+        self.fixed: tuple[float, float] | None = None  # None: uPlot's own range
 
-    def wanted(self, *ys: np.ndarray) -> tuple[float, float] | None:
+    def update(self, *ys: np.ndarray) -> tuple[float, float] | None:
+        """The class for this frame's data (kept when there is nothing to range)."""
         extent = finite_extent(*ys)
         if extent is None:
-            return self.fixed  # nothing to range: keep what is shown
+            return self.fixed
         lo, hi = extent
         if self.fixed is not None and self.fixed[0] <= lo and hi <= self.fixed[1]:
             return self.fixed
-        if 1.1 * (hi - lo) < self.min_span:  # padded 5 % each side, as span_range pads
-            return span_range(*ys, min_span=self.min_span)
-        return None
+        narrow = 1.1 * (hi - lo) < self.min_span  # padded 5 % each side, as span_range pads
+        self.fixed = span_range(*ys, min_span=self.min_span) if narrow else None
+        return self.fixed
 
-    def scales(self, *ys: np.ndarray) -> dict[str, up.Scale] | None:
-        wanted = self.wanted(*ys)
-        if wanted == self.fixed:
-            return None
-        self.fixed = wanted
-        return time_scales(wanted)
+    def pad(self, *data: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``data`` (x and its series) with the span series appended."""
+        fixed = self.update(*data[1:])
+        return (*data, span_pad(len(data[0]), fixed, finite_extent(*data[1:])))
 
 
-def time_scales(y_range: tuple[float, float] | None) -> dict[str, up.Scale]:
-    """A time chart's scales: seconds on x, y auto or fixed."""
-    if y_range is None:
-        return {"x": up.Scale(time=False), "y": up.Scale(auto=True)}
-    return {"x": up.Scale(time=False), "y": up.Scale(auto=False, range=y_range)}
+def span_pad(
+    n: int, fixed: tuple[float, float] | None, extent: tuple[float, float] | None
+) -> np.ndarray:
+    """The invisible series: the fixed range's ends at the first and last x, NaN between;
+    without a fixed range the data's own extent (inside uPlot's range: changes nothing). Its
+    first point is finite whenever the chart has data (the leading-NaN trap above)."""
+    out = np.full(n, np.nan)
+    if extent is not None and n:  # (no data: nothing to span, the chart stays empty)
+        out[0], out[-1] = fixed if fixed is not None else extent
+    return out
+
+
+SPAN_STROKE = "rgba(1, 2, 3, 0)"  # transparent, and how layout.TOUCH_CSS finds its legend row
+SPAN_SERIES = up.Series(
+    label="minimum span", stroke=SPAN_STROKE, width=0, points=up.Series_Points(show=False)
+)  # the span's: never drawn, and left out of the legend
 
 
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
@@ -213,11 +227,14 @@ def time_chart(
     *,
     height: int = 150,
     x: str = "t [s]",
+    spanned: bool = False,
 ) -> viser.GuiUplotHandle:
-    """A chart of several series against time (seconds, not dates)."""
+    """A chart of several series against time (seconds, not dates); ``spanned``: with the
+    minimum span's series last (:class:`SpanClass`)."""
+    extra = (SPAN_SERIES,) if spanned else ()
     return gui.add_uplot(
-        data=nonempty((np.zeros(0),) * (len(labels) + 1)),
-        series=(up.Series(label=x), *(series(name, color) for name, color in labels)),
+        data=nonempty((np.zeros(0),) * (len(labels) + 1 + len(extra))),
+        series=(up.Series(label=x), *(series(name, color) for name, color in labels), *extra),
         title=title,
         scales={"x": up.Scale(time=False)},
         height=height,
@@ -227,7 +244,7 @@ def time_chart(
 
 class SpannedCharts:
     """The four time charts (velocity, torque, power, passivity), each with its
-    :class:`SpanClass`; :meth:`plot` sends a chart's scales only when its class changes."""
+    :class:`SpanClass`: :meth:`plot` sends a chart its data with the span series."""
 
     velocity: viser.GuiUplotHandle
     torque: viser.GuiUplotHandle
@@ -243,11 +260,7 @@ class SpannedCharts:
         }
 
     def plot(self, name: str, data: tuple[np.ndarray, ...]) -> None:
-        chart = getattr(self, name)
-        scales = self.spans[name].scales(*data[1:])
-        if scales is not None:
-            chart.scales = scales
-        chart.data = data
+        getattr(self, name).data = self.spans[name].pad(*data)
 
 
 class LiveCharts(SpannedCharts):
@@ -255,13 +268,16 @@ class LiveCharts(SpannedCharts):
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
-            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
-        )
+            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c")),
+            spanned=True,
+        )  # fmt: skip
         self.torque = time_chart(
-            gui, "torque [N·m]", (("motor u (written)", "#c2255c"), ("user τ̂", "#2f9e44"))
-        )
-        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
-        self.passivity = time_chart(gui, "passivity W(t) = ∫τw dt [J]", (("W", "#495057"),))
+            gui, "torque [N·m]", (("motor u (written)", "#c2255c"), ("user τ̂", "#2f9e44")),
+            spanned=True,
+        )  # fmt: skip
+        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),), spanned=True)
+        self.passivity = time_chart(gui, "passivity W(t) = ∫τw dt [J]", (("W", "#495057"),),
+                                    spanned=True)  # fmt: skip
         self._spans()
         self._measured: bool | None = None
 
@@ -274,6 +290,7 @@ class LiveCharts(SpannedCharts):
             up.Series(label="t [s]"),
             series("motor u (written)", "#c2255c"),
             series(name, "#2f9e44"),
+            SPAN_SERIES,
         )
 
     def show(self, window: LiveWindow) -> None:
@@ -289,13 +306,14 @@ class SessionCharts(SpannedCharts):
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
-            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
-        )
+            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c")),
+            spanned=True,
+        )  # fmt: skip
         self.torque = time_chart(
-            gui, "torque [N·m]", (("motor u", "#c2255c"), ("user τ̂", "#2f9e44"))
+            gui, "torque [N·m]", (("motor u", "#c2255c"), ("user τ̂", "#2f9e44")), spanned=True
         )
-        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
-        self.passivity = time_chart(gui, "passivity W(t) [J]", (("W", "#495057"),))
+        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),), spanned=True)
+        self.passivity = time_chart(gui, "passivity W(t) [J]", (("W", "#495057"),), spanned=True)
         self._spans()
 
     def show(self, columns: dict[str, np.ndarray]) -> None:

@@ -112,6 +112,8 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     assert int(work.group(3)) <= 10
     wait_text(page, r"Velocity [\d.]+ rpm \(target [\d.]+ rpm\) · power [-\d.]+ W \([-\d.]+ W/kg\)")
     wait_text(page, rf"Last session #{sid}: completed", 2 * PAGE_WAIT_MS)
+    # the live velocity chart's legend: its series, not the invisible span series
+    assert page.evaluate(LEGEND) == [["t [s]", "desired wd", "actual w"]]
 
     # -- the stored optimum, in rpm, then in rad/s once the account says so ---
     with server.client() as api:
@@ -163,6 +165,13 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     context.close()
 
 
+LEGEND = """() => Object.values(window.__viserTestpoints?.uplots ?? {})
+    .map(({chart}) => chart.root)
+    .filter(root => root.querySelector('.u-title')?.textContent === 'velocity [rad/s]'
+                    && root.offsetParent !== null)
+    .map(root => [...root.querySelectorAll('.u-legend .u-series')]
+         .filter(row => getComputedStyle(row).display !== 'none')
+         .map(row => row.querySelector('.u-label')?.textContent ?? ''))"""
 TABLE_ROWS = """() => [...document.querySelectorAll('table tr')]
     .map(tr => [...tr.cells].map(c => c.innerText.replace(/\u2060/g, '').trim()))"""
 
@@ -271,8 +280,9 @@ def check_profile_charts(page: Any, server: DemoServer) -> None:
 
 
 SPAN_POLL = """() => Object.values(window.__viserTestpoints?.uplots ?? {}).map(
-  ({chart, createCount}) => ({
-    title: chart.root.querySelector('.u-title')?.textContent ?? '', created: createCount,
+  ({chart}) => ({
+    title: chart.root.querySelector('.u-title')?.textContent ?? '',
+    id: (chart.__ergoseekProbe ??= Math.random()),
     y: [chart.scales.y.min, chart.scales.y.max], x_max: chart.scales.x.max,
     last: chart.data[0][chart.data[0].length - 1], ticks: chart.axes[1]._values ?? [],
     w: Array.from(chart.data[2] ?? [], v => Number.isFinite(v) ? v : null)}))"""
@@ -343,7 +353,7 @@ def test_the_live_charts_keep_their_minimum_span_and_keep_drawing(browser: Any) 
             continue
         stage = max(i for i, s in enumerate(STAGES) if c["last"] >= s[0])
         settled = c["last"] - 1.5 >= STAGES[stage][0]  # the window holds this stage only
-        assert c["created"] == 1  # never rebuilt
+        assert c["id"] == polls[-1][1]["id"]  # the same uPlot object throughout: never rebuilt
         assert c["x_max"] == pytest.approx(c["last"], abs=0.1)  # drawn up to the newest sample
         assert at - c["last"] < 1.5  # and that sample is recent: new data keeps coming
         assert len(set(c["ticks"])) == len(c["ticks"]) >= 2, c  # no repeated label

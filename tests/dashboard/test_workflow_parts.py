@@ -164,37 +164,40 @@ def test_the_profile_charts_hold_the_fit_and_the_steps_it_was_fitted_to() -> Non
     assert profile_fit([failed]) is None
 
 
-def test_a_time_chart_gets_its_minimum_span_only_when_its_class_changes() -> None:
-    # the issue's steady 3.095 rad/s with a 1e-4 zigzag: a fixed range at least 0.5 wide
-    # around it, whose three ticks are three different labels; sent once, not every frame
+def test_a_time_chart_gets_its_minimum_span_from_an_invisible_series() -> None:
+    # the issue's steady 3.095 rad/s with a 1e-4 zigzag: the span series holds a range at
+    # least 0.5 wide around it (uPlot's auto range takes it in), whose three ticks are three
+    # different labels; it stays put while the signal stays in it
     span = SpanClass(VELOCITY_SPAN)
+    t = np.arange(200) * 0.02
     steady = 3.095 + 1e-4 * (-1.0) ** np.arange(200)
-    first = span.scales(steady, steady + 2e-4)
-    assert first is not None and first["y"]["auto"] is False
-    lo, hi = first["y"]["range"]
+    x, a, _, pad = span.pad(t, steady, steady + 2e-4)
+    assert x is t and a is steady and len(pad) == len(t)
+    lo, hi = pad[0], pad[-1]
+    assert np.isnan(pad[1:-1]).all()
     assert hi - lo >= VELOCITY_SPAN and lo <= steady.min() and hi >= steady.max() + 2e-4
-    assert len({f"{x:.3f}" for x in np.linspace(lo, hi, 3)}) == 3
-    for k in range(50):  # frames of the same steady signal: nothing to send
-        assert span.scales(steady + 1e-5 * k) is None
-    # it drifts out of its range, still steady: a new fixed range, once
-    moved = span.scales(steady + 0.4)
-    assert moved is not None and moved["y"]["range"][0] <= steady.min() + 0.4
-    assert span.scales(steady + 0.4) is None
-    # a wide signal: uPlot's own range (auto), once; NaN (no value) ignored
-    wide = np.concatenate(([np.nan], np.linspace(0.0, 3.0, 100)))
-    auto = span.scales(wide)
-    assert auto is not None and auto["y"]["auto"] is True and "range" not in auto["y"]
-    assert span.scales(wide * 0.9) is None
+    assert len({f"{v:.3f}" for v in np.linspace(lo, hi, 3)}) == 3
+    for k in range(50):  # frames of the same steady signal: the same range
+        assert span.pad(t, steady + 1e-5 * k)[-1][[0, -1]].tolist() == [lo, hi]
+    # it drifts out of its range, still steady: a new range around it
+    moved = span.pad(t, steady + 0.4)[-1]
+    assert moved[0] <= steady.min() + 0.4 and moved[-1] >= steady.max() + 0.4 > hi
+    # a wide signal: uPlot's own range; the span series holds the data's own extent (inside
+    # that range, so it changes nothing) and starts finite (a NaN first point breaks uPlot)
+    wide = np.concatenate(([np.nan], np.linspace(0.0, 3.0, 199)))
+    pad = span.pad(t, wide)[-1]
+    assert span.fixed is None and (pad[0], pad[-1]) == (0.0, 3.0)
     # steady again: the minimum span again
-    again = span.scales(np.full(10, 1.2))
-    assert again is not None and again["y"]["range"][0] < 1.2 < again["y"]["range"][1]
-    # nothing to range (an empty chart's NaNs): what is shown stays
-    assert span.scales(np.full(2, np.nan)) is None and span.fixed == again["y"]["range"]
+    pad = span.pad(t, np.full(200, 1.2))[-1]
+    assert pad[-1] - pad[0] >= VELOCITY_SPAN and pad[0] < 1.2 < pad[-1]
+    # nothing to range (an empty chart's NaN pair): NaN, and the class stays
+    assert np.isnan(span.pad(np.array([0.0, 1.0]), np.full(2, np.nan))[-1]).all()
+    assert span.fixed is not None
 
 
-def test_the_live_charts_send_scales_only_when_a_class_changes() -> None:
-    # the frame's message is the data alone: the velocity chart's scales are assigned once
-    # per class change (steady → wide → steady), not once per frame
+def test_the_live_charts_send_the_span_as_data_never_as_scales() -> None:
+    # the frame's message is the data alone (its span series included): the charts' scales
+    # are never assigned, so viser's client never rebuilds them
     import viser
 
     from sessions.telemetry import RECORD_INDEX, RECORD_WIDTH
@@ -203,7 +206,9 @@ def test_the_live_charts_send_scales_only_when_a_class_changes() -> None:
     srv = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         charts, window = LiveCharts(srv.gui), LiveWindow(seconds=1.0)
-        assigned, last = 0, charts.velocity.scales
+        handles = (charts.velocity, charts.torque, charts.power, charts.passivity)
+        scales = [h.scales for h in handles]
+        spans: list[tuple[float, float] | None] = []
         for k in range(300):  # 6 s at 50 samples/s: steady, wide, steady
             t = 0.02 * k
             w = 2.0 + math.sin(2 * math.pi * t) if 2.0 <= t < 4.0 else 3.095 + 1e-4 * (-1) ** k
@@ -212,9 +217,12 @@ def test_the_live_charts_send_scales_only_when_a_class_changes() -> None:
             rec[0, RECORD_INDEX["session"]] = 1.0
             window.extend(rec)
             charts.show(window)
-            if charts.velocity.scales is not last:
-                assigned, last = assigned + 1, charts.velocity.scales
-        assert assigned == 3, assigned  # fixed, auto, fixed
-        assert charts.velocity.scales["y"]["auto"] is False
+            data = charts.velocity.data
+            assert len(data) == 4 and len(data[3]) == len(data[0])  # t, wd, w, span
+            fixed = charts.spans["velocity"].fixed
+            if not spans or spans[-1] != fixed:
+                spans.append(fixed)
+        assert [h.scales for h in handles] == scales  # never assigned
+        assert len(spans) == 3 and spans[1] is None  # fixed, uPlot's own, fixed again
     finally:
         srv.stop()
