@@ -210,10 +210,10 @@ def span_pad(
     return out
 
 
-SPAN_STROKE = "rgba(1, 2, 3, 0)"  # transparent, and how layout.TOUCH_CSS finds its legend row
 SPAN_SERIES = up.Series(
-    label="minimum span", stroke=SPAN_STROKE, width=0, points=up.Series_Points(show=False)
-)  # the span's: never drawn, and left out of the legend
+    label="(y span)", stroke="rgba(0,0,0,0)", width=0, points=up.Series_Points(show=False)
+)  # the span's: never drawn. Its legend row stays: hiding it takes a `:has()` rule, which
+# made Chromium restyle the dashboard so often that its tabs appeared 20-40 s late here
 
 
 def series(label: str, stroke: str, **extra: Any) -> up.Series:

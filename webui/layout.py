@@ -33,8 +33,6 @@ from dataclasses import dataclass
 
 import viser
 
-from webui.charts import SPAN_STROKE
-
 # Order of the elements at the top of the main panel (viser sorts a container's children by
 # ``order``, across the shared GUI and a browser's own): a browser's E-STOP first, the shared
 # large numbers, that browser's Start / Stop / Reset and their message, then the stylesheet
@@ -112,8 +110,6 @@ TOUCH_CSS = (
     ".ergoseek-numbers .v{{font-size:2.1em;font-weight:700;line-height:1.1;"
     "font-variant-numeric:tabular-nums;white-space:nowrap}}"
     ".ergoseek-numbers .k{{font-size:0.8em;opacity:0.7}}"
-    # the legend row of charts.SPAN_SERIES (its marker's border is its stroke)
-    ".u-legend .u-series:has(.u-marker[style*='" + SPAN_STROKE + "']){{display:none}}"
     "</style>"
 )
 

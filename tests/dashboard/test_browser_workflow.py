@@ -112,8 +112,11 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     assert int(work.group(3)) <= 10
     wait_text(page, r"Velocity [\d.]+ rpm \(target [\d.]+ rpm\) · power [-\d.]+ W \([-\d.]+ W/kg\)")
     wait_text(page, rf"Last session #{sid}: completed", 2 * PAGE_WAIT_MS)
-    # the live velocity chart's legend: its series, not the invisible span series
-    assert page.evaluate(LEGEND) == [["t [s]", "desired wd", "actual w"]]
+    # the live velocity chart's legend: its series, then the span series, never drawn
+    assert page.evaluate(LEGEND) == [
+        [["t [s]", ""], ["desired wd", "rgb(28, 126, 214)"], ["actual w", "rgb(232, 89, 12)"],
+         ["(y span)", "rgba(0, 0, 0, 0)"]]
+    ]  # fmt: skip
 
     # -- the stored optimum, in rpm, then in rad/s once the account says so ---
     with server.client() as api:
@@ -170,8 +173,8 @@ LEGEND = """() => Object.values(window.__viserTestpoints?.uplots ?? {})
     .filter(root => root.querySelector('.u-title')?.textContent === 'velocity [rad/s]'
                     && root.offsetParent !== null)
     .map(root => [...root.querySelectorAll('.u-legend .u-series')]
-         .filter(row => getComputedStyle(row).display !== 'none')
-         .map(row => row.querySelector('.u-label')?.textContent ?? ''))"""
+         .map(row => [row.querySelector('.u-label')?.textContent ?? '',
+                      row.querySelector('.u-marker')?.style.borderColor ?? '']))"""
 TABLE_ROWS = """() => [...document.querySelectorAll('table tr')]
     .map(tr => [...tr.cells].map(c => c.innerText.replace(/\u2060/g, '').trim()))"""
 
