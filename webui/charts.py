@@ -8,6 +8,7 @@ rate), and a past session is read from the store decimated to :data:`HISTORY_POI
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -146,6 +147,75 @@ def min_span_scales(*ys: np.ndarray, min_span: float = 1.0) -> dict[str, up.Scal
     }
 
 
+# Minimum y spans of the time charts (their units): a steady signal is drawn flat in a range
+# this wide, not magnified until uPlot's 3-decimal tick labels repeat ("3.095" three times).
+VELOCITY_SPAN = 0.5  # rad/s
+TORQUE_SPAN = 0.5  # N·m
+POWER_SPAN = 1.0  # W
+WORK_SPAN = 1.0  # J
+
+
+def finite_extent(*ys: np.ndarray) -> tuple[float, float] | None:
+    """(min, max) over the finite values of ``ys``; None without any."""
+    lo, hi = math.inf, -math.inf
+    for y in ys:
+        finite = y[np.isfinite(y)]
+        if len(finite):
+            lo, hi = min(lo, float(finite.min())), max(hi, float(finite.max()))
+    return (lo, hi) if lo <= hi else None
+
+
+class SpanClass:
+    """A time chart's minimum y span, by class: none while the data spans at least
+    ``min_span`` (uPlot's own range); below that, a fixed range of :func:`span_range`, kept
+    while the data stays inside it.
+
+    The range reaches the chart as data, never as its scales: a last, invisible series
+    (:func:`span_pad`) holds the range's two ends, and uPlot's auto range takes them in. (In
+    viser 1.1.1's client a change of a chart's scales rebuilds the chart, and a chart rebuilt
+    under a stream of data can keep an old x range and stop showing the new data.) So the
+    frame stays one message, and the chart is never rebuilt."""
+
+    def __init__(self, min_span: float) -> None:
+        self.min_span = min_span
+        self.fixed: tuple[float, float] | None = None  # None: uPlot's own range
+
+    def update(self, *ys: np.ndarray) -> tuple[float, float] | None:
+        """The class for this frame's data (kept when there is nothing to range)."""
+        extent = finite_extent(*ys)
+        if extent is None:
+            return self.fixed
+        lo, hi = extent
+        if self.fixed is not None and self.fixed[0] <= lo and hi <= self.fixed[1]:
+            return self.fixed
+        narrow = 1.1 * (hi - lo) < self.min_span  # padded 5 % each side, as span_range pads
+        self.fixed = span_range(*ys, min_span=self.min_span) if narrow else None
+        return self.fixed
+
+    def pad(self, *data: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``data`` (x and its series) with the span series appended."""
+        fixed = self.update(*data[1:])
+        return (*data, span_pad(len(data[0]), fixed, finite_extent(*data[1:])))
+
+
+def span_pad(
+    n: int, fixed: tuple[float, float] | None, extent: tuple[float, float] | None
+) -> np.ndarray:
+    """The invisible series: the fixed range's ends at the first and last x, NaN between;
+    without a fixed range the data's own extent (inside uPlot's range: changes nothing). Its
+    first point is finite whenever the chart has data (the leading-NaN trap above)."""
+    out = np.full(n, np.nan)
+    if extent is not None and n:  # (no data: nothing to span, the chart stays empty)
+        out[0], out[-1] = fixed if fixed is not None else extent
+    return out
+
+
+SPAN_SERIES = up.Series(
+    label="(y span)", stroke="rgba(0,0,0,0)", width=0, points=up.Series_Points(show=False)
+)  # the span's: never drawn. Its legend row stays: hiding it takes a `:has()` rule, which
+# made Chromium restyle the dashboard so often that its tabs appeared 20-40 s late here
+
+
 def series(label: str, stroke: str, **extra: Any) -> up.Series:
     return up.Series(label=label, stroke=stroke, width=1.5, **extra)  # type: ignore[typeddict-item]
 
@@ -157,11 +227,14 @@ def time_chart(
     *,
     height: int = 150,
     x: str = "t [s]",
+    spanned: bool = False,
 ) -> viser.GuiUplotHandle:
-    """A chart of several series against time (seconds, not dates)."""
+    """A chart of several series against time (seconds, not dates); ``spanned``: with the
+    minimum span's series last (:class:`SpanClass`)."""
+    extra = (SPAN_SERIES,) if spanned else ()
     return gui.add_uplot(
-        data=nonempty((np.zeros(0),) * (len(labels) + 1)),
-        series=(up.Series(label=x), *(series(name, color) for name, color in labels)),
+        data=nonempty((np.zeros(0),) * (len(labels) + 1 + len(extra))),
+        series=(up.Series(label=x), *(series(name, color) for name, color in labels), *extra),
         title=title,
         scales={"x": up.Scale(time=False)},
         height=height,
@@ -169,18 +242,43 @@ def time_chart(
     )
 
 
-class LiveCharts:
+class SpannedCharts:
+    """The four time charts (velocity, torque, power, passivity), each with its
+    :class:`SpanClass`: :meth:`plot` sends a chart its data with the span series."""
+
+    velocity: viser.GuiUplotHandle
+    torque: viser.GuiUplotHandle
+    power: viser.GuiUplotHandle
+    passivity: viser.GuiUplotHandle
+
+    def _spans(self) -> None:
+        self.spans = {
+            "velocity": SpanClass(VELOCITY_SPAN),
+            "torque": SpanClass(TORQUE_SPAN),
+            "power": SpanClass(POWER_SPAN),
+            "passivity": SpanClass(WORK_SPAN),
+        }
+
+    def plot(self, name: str, data: tuple[np.ndarray, ...]) -> None:
+        getattr(self, name).data = self.spans[name].pad(*data)
+
+
+class LiveCharts(SpannedCharts):
     """Velocity, torque, power and passivity over the live window."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
-            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
-        )
+            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c")),
+            spanned=True,
+        )  # fmt: skip
         self.torque = time_chart(
-            gui, "torque [N·m]", (("motor u (written)", "#c2255c"), ("user τ̂", "#2f9e44"))
-        )
-        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
-        self.passivity = time_chart(gui, "passivity W(t) = ∫τw dt [J]", (("W", "#495057"),))
+            gui, "torque [N·m]", (("motor u (written)", "#c2255c"), ("user τ̂", "#2f9e44")),
+            spanned=True,
+        )  # fmt: skip
+        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),), spanned=True)
+        self.passivity = time_chart(gui, "passivity W(t) = ∫τw dt [J]", (("W", "#495057"),),
+                                    spanned=True)  # fmt: skip
+        self._spans()
         self._measured: bool | None = None
 
     def label_user_torque(self, measured: bool) -> None:
@@ -192,38 +290,41 @@ class LiveCharts:
             up.Series(label="t [s]"),
             series("motor u (written)", "#c2255c"),
             series(name, "#2f9e44"),
+            SPAN_SERIES,
         )
 
     def show(self, window: LiveWindow) -> None:
         t, wd, w, u, tau, p, W = window.series("t", "wd", "w", "u_out", "tau", "p", "W")
-        self.velocity.data = (t, wd, w)
-        self.torque.data = (t, u, tau)
-        self.power.data = (t, p)
-        self.passivity.data = (t, W)
+        self.plot("velocity", (t, wd, w))
+        self.plot("torque", (t, u, tau))
+        self.plot("power", (t, p))
+        self.plot("passivity", (t, W))
 
 
-class SessionCharts:
+class SessionCharts(SpannedCharts):
     """A past session, from the store's decimated telemetry (the same four charts)."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.velocity = time_chart(
-            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c"))
-        )
+            gui, "velocity [rad/s]", (("desired wd", "#1c7ed6"), ("actual w", "#e8590c")),
+            spanned=True,
+        )  # fmt: skip
         self.torque = time_chart(
-            gui, "torque [N·m]", (("motor u", "#c2255c"), ("user τ̂", "#2f9e44"))
+            gui, "torque [N·m]", (("motor u", "#c2255c"), ("user τ̂", "#2f9e44")), spanned=True
         )
-        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),))
-        self.passivity = time_chart(gui, "passivity W(t) [J]", (("W", "#495057"),))
+        self.power = time_chart(gui, "power p [W]", (("p", "#7048e8"),), spanned=True)
+        self.passivity = time_chart(gui, "passivity W(t) [J]", (("W", "#495057"),), spanned=True)
+        self._spans()
 
     def show(self, columns: dict[str, np.ndarray]) -> None:
         def c(name: str) -> np.ndarray:
             return np.ascontiguousarray(columns.get(name, np.zeros(0)), dtype=np.float64)
 
         t = c("t")
-        self.velocity.data = plottable((t, c("wd"), c("w")))
-        self.torque.data = plottable((t, c("u"), c("tau")))
-        self.power.data = plottable((t, c("p")))
-        self.passivity.data = plottable((t, c("W")))
+        self.plot("velocity", plottable((t, c("wd"), c("w"))))
+        self.plot("torque", plottable((t, c("u"), c("tau"))))
+        self.plot("power", plottable((t, c("p"))))
+        self.plot("passivity", plottable((t, c("W"))))
 
     def clear(self) -> None:
         self.show({})

@@ -15,7 +15,7 @@ from fastapi.responses import Response, StreamingResponse
 
 from server.api.deps import MachineDep, StoreDep, Trainer, Viewer
 from server.api.schemas import MAX_ID, Id, SessionOut, SessionStart, TelemetryOut
-from server.service.phases import summarize_phases
+from server.service import phases as phase_service
 from server.service.templates import resolve_template
 from sessions.codes import SessionStatus
 from sessions.store import EventRecord, Page, PhaseRecord, SessionRecord, Store
@@ -83,19 +83,14 @@ def hint(s: SessionRecord) -> str | None:
 
 @router.get(
     "/{session_id}/phases", response_model=list[PhaseRecord],
-    summary="The protocol's phases: spans (s), powers (W), work (J), optimum (rad/s), fits",
+    summary="The protocol's phases: spans (s), powers (W), work (J), optimum (rad/s) and its bound",
 )  # fmt: skip
 async def session_phases(session_id: Id, store: StoreDep, _: Viewer) -> list[PhaseRecord]:
     return await asyncio.to_thread(_phases, store, session_id)
 
 
 def _phases(store: Store, session_id: int) -> list[PhaseRecord]:
-    phases = store.phases.list(session_id)
-    if store.sessions.get(session_id).status != "running" and any(
-        p.mean_power is None for p in phases
-    ):  # an ended session whose summaries were never made (a crash): made now
-        phases = summarize_phases(store, session_id)
-    return phases
+    return phase_service.session_phases(store, session_id)
 
 
 @router.post(

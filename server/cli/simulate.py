@@ -37,10 +37,11 @@ def phases(result: Any) -> list[dict[str, Any]]:
     cols = {n: result.column(n) for n in ("t", "q", "w", "tau", "W")}
     end = float(cols["t"][-1]) + result.cfg.dt if len(cols["t"]) else 0.0
     out = []
-    for span in phase_spans(result.stages, end, result.progress.target):
+    for span in phase_spans(result.stages, end, result.progress.target, result.progress.at_bound):
         r = summarize_phase(cols, span)
         row = {k: getattr(r, k) for k in ("kind", "name", "start", "end", "mean_power",
-                                          "peak_power", "work", "optimum_w")}  # fmt: skip
+                                          "peak_power", "work", "optimum_w",
+                                          "at_bound")}  # fmt: skip
         if r.profile is not None:
             fit = r.profile.to_dict()
             row["profile"] = {k: fit[k] for k in ("model", "tau0", "wmax", "pmax", "w_opt")}

@@ -60,6 +60,7 @@ def export_phases(phases: list[PhaseRecord]) -> list[Phase]:
                 peak_power=p.peak_power,
                 work=p.work,
                 optimum_w=p.optimum_w,
+                at_bound=p.at_bound,
             )
         )
     return out

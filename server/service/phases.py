@@ -4,7 +4,9 @@ summaries (:mod:`sessions.protocol.analysis`) computed from the stored telemetry
 - :func:`record_stage`: a stage the worker reported: an event of the session (``stage``, its
   whole description) and, for a phase's first stage, the phase's row (ending the one before);
 - :func:`summarize_phases`: the summaries of the phases that have none yet (all of them once the
-  session has ended, or the ones named), from the stored telemetry. Run off the event loop.
+  session has ended, or the ones named), from the stored telemetry. Run off the event loop;
+- :func:`session_phases`: the phases as REST and the dashboard read them (summarized first if
+  the session has ended without them).
 
 After a crash the boundaries are there (every stage is flushed as it comes); the summaries are
 computed the next time they are asked for (:func:`summarize_phases` on a session that ended).
@@ -42,7 +44,7 @@ def spans(store: Store, session_id: int) -> list[PhaseSpan]:
     span = store.telemetry.span(session_id)
     dt = 1.0 / float(record.config.get("rate", 1000.0))
     end = (span.t1 + dt) if span.t1 is not None else 0.0
-    return phase_spans(stored_stages(store, session_id), end, record.optimum_w)
+    return phase_spans(stored_stages(store, session_id), end, record.optimum_w, record.at_bound)
 
 
 def summarize_phases(
@@ -66,6 +68,17 @@ def summarize_phases(
         result = summarize_phase(cols, span, profile_model=profile_model.get(span.index, "auto"))
         store.phases.summarize(session_id, result)
     return store.phases.list(session_id)
+
+
+def session_phases(store: Store, session_id: int) -> list[PhaseRecord]:
+    """A session's phases as REST and the dashboard show them: an ended session whose summaries
+    were never made (a crash, or the pump not there yet) gets them now."""
+    phases = store.phases.list(session_id)
+    if store.sessions.get(session_id).status != "running" and any(
+        p.mean_power is None for p in phases
+    ):
+        phases = summarize_phases(store, session_id)
+    return phases
 
 
 def _profile_models(config: dict[str, object]) -> dict[int, str]:

@@ -41,6 +41,7 @@ class Phase:
     peak_power: float | None = None  # W
     work: float | None = None  # J
     optimum_w: float | None = None  # rad/s, the optimum this phase found or held
+    at_bound: str | None = None  # lower, upper: that optimum is the bracket's edge, not a peak
 
 
 @dataclass(frozen=True, slots=True)

@@ -78,6 +78,7 @@ DEVELOPER_FIELDS = (
     DeveloperField(3, "optimum_cadence", "rpm", FLOAT32, 19),  # laps and the session
     DeveloperField(4, "phase", "", STRING, 19),
     DeveloperField(5, "mean_power", "W", FLOAT32, 20),  # unrounded: a small user's 3 W
+    DeveloperField(6, "optimum_at_bound", "", STRING, 19),  # laps and the session: upper, lower
 )  # in order of number: some decoders key developer fields by the description's position
 
 
@@ -223,9 +224,13 @@ def _with_given(tot: Totals, ph: Phase | SessionSummary | None) -> Totals:
     return Totals(duration, mean, peak, work, tot.mean_w, tot.peak_w)
 
 
-def _optimum(fields: dict[str, Any], w: float | None) -> dict[str, Any]:
+def _optimum(fields: dict[str, Any], w: float | None, at_bound: str | None) -> dict[str, Any]:
+    """The optimum (rpm) and, when it is the bracket's edge, which one ("upper", "lower")."""
     if w is not None and math.isfinite(w):
-        fields.setdefault("developer_fields", {})[3] = float(np.float32(w * RPM_PER_RAD_S))
+        dev = fields.setdefault("developer_fields", {})
+        dev[3] = float(np.float32(w * RPM_PER_RAD_S))
+        if at_bound:
+            dev[6] = at_bound
     return fields
 
 
@@ -254,7 +259,7 @@ def _laps(
             **_summary_fields(tot, opts),
             "developer_fields": {4: _phase_name(ph.name)},
         }
-        laps.append(_optimum(lap, ph.optimum_w))
+        laps.append(_optimum(lap, ph.optimum_w, ph.at_bound))
     return laps
 
 
@@ -382,7 +387,9 @@ def _trailer(
         "num_laps": laps,
         **_summary_fields(tot, opts),
     }
-    enc.write_mesg(_optimum(session, summary.optimum_w if summary else None))
+    enc.write_mesg(
+        _optimum(session, *((summary.optimum_w, summary.at_bound) if summary else (None, None)))
+    )
     offset = start.utcoffset() or timedelta(0)
     activity = {
         "mesg_num": 34,

@@ -164,6 +164,15 @@ def _velocity(w: float | None, unit: VelocityUnit) -> str:
     return _num(None if w is None else w * velocity_factor(unit), 3, unit)
 
 
+EDGE = {"upper": "≥ ", "lower": "≤ "}  # an optimum at the bracket's edge: the peak lies beyond
+EDGE_NOTE = "≥ / ≤: the search ended at the bracket's upper / lower edge; the peak lies beyond it."
+
+
+def _optimum(w: float | None, unit: VelocityUnit, at_bound: str | None) -> str:
+    """The optimum, ``≥ x`` / ``≤ x`` when it is the bracket's upper / lower edge."""
+    return (EDGE.get(at_bound or "", "") if w is not None else "") + _velocity(w, unit)
+
+
 # -- sections ----------------------------------------------------------------------------------
 def _header(fig: Figure, d: ReportData) -> None:
     when = d.started_at.astimezone(d.timezone) if d.timezone else d.started_at
@@ -187,7 +196,7 @@ def _rule(fig: Figure, y: float) -> None:
 def _figures(fig: Figure, d: ReportData) -> None:
     s, m, unit = d.summary, d.body_mass_kg, d.velocity_unit
     left = [
-        ("Optimum velocity", _velocity(s.optimum_w, unit)),
+        ("Optimum velocity", _optimum(s.optimum_w, unit, s.at_bound)),
         ("Power at the optimum", _power(s.optimum_p, m)),
         ("Peak power", _power(s.peak_power, m)),
         ("Mean power", _power(s.mean_power, m)),
@@ -232,9 +241,9 @@ def _phase_table(fig: Figure, d: ReportData, phases: tuple[Phase, ...]) -> None:
         return
     for x, title, _ in cols:
         fig.text(x, top - row, title, size=7.5, color="#555555")
-    shown = (
-        phases[:MAX_PHASE_ROWS] if len(phases) <= MAX_PHASE_ROWS else phases[: MAX_PHASE_ROWS - 1]
-    )
+    edge = bool(d.summary.at_bound or any(ph.at_bound for ph in phases))
+    room = MAX_PHASE_ROWS - edge  # the edge's note takes a row
+    shown = phases if len(phases) <= room else phases[: room - 1]
     for i, ph in enumerate(shown):
         y = top - (i + 2) * row
         cells = [
@@ -244,15 +253,16 @@ def _phase_table(fig: Figure, d: ReportData, phases: tuple[Phase, ...]) -> None:
             _num(ph.mean_power, 3, "W"),
             _num(ph.peak_power, 3, "W"),
             _num(None if ph.work is None else ph.work / 1000.0, 3, "kJ"),
-            _velocity(ph.optimum_w, d.velocity_unit),
+            _optimum(ph.optimum_w, d.velocity_unit, ph.at_bound),
         ]
         for (x, _, width), cell in zip(cols, cells, strict=True):
             _plain(fig, x, y, cell, width, 7.5)
-    if len(shown) < len(phases):
+    notes = [f"… and {len(phases) - len(shown)} more phases"] if len(shown) < len(phases) else []
+    if edge:
+        notes.append(EDGE_NOTE)
+    if notes:
         y = top - (len(shown) + 2) * row
-        fig.text(
-            0.06, y, f"… and {len(phases) - len(shown)} more phases", size=7.5, color="#555555"
-        )
+        fig.text(0.06, y, "   ".join(notes), size=7.5, color="#555555")
 
 
 def _velocity_axis(ax: Axes, unit: VelocityUnit) -> None:

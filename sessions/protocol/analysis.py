@@ -44,6 +44,7 @@ class PhaseSpan:
     end: float  # s, the next phase's first period (or the end of the data)
     stages: tuple[Stage, ...]
     optimum: float | None = None  # rad/s: the seeker's optimum as the phase ended
+    at_bound: str | None = None  # lower, upper: the seeker's best point at that edge as it ended
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,7 @@ class PhaseResult:
     work: float
     mean_w: float
     optimum_w: float | None
+    at_bound: str | None = None
     profile: ProfileFit | None = None
     detail: dict[str, Any] = field(default_factory=dict)
 
@@ -68,16 +70,20 @@ class PhaseResult:
         return Phase(
             name=self.name, start=self.start, end=self.end, kind=self.kind,
             mean_power=self.mean_power, peak_power=self.peak_power, work=self.work,
-            optimum_w=self.optimum_w,
+            optimum_w=self.optimum_w, at_bound=self.at_bound,
         )  # fmt: skip
 
 
 def phase_spans(
-    stages: Sequence[Stage], end: float, final_optimum: float | None = None
+    stages: Sequence[Stage],
+    end: float,
+    final_optimum: float | None = None,
+    final_at_bound: str | None = None,
 ) -> list[PhaseSpan]:
     """The phases the stages describe, in order, up to session time ``end`` (phases that had
-    not begun by then, or never ran a period, are left out). ``final_optimum``: the optimum at
-    the session's end (the summary's), for the last phase."""
+    not begun by then, or never ran a period, are left out). ``final_optimum`` and
+    ``final_at_bound``: the seeker's optimum and bound at the session's end (the summary's),
+    for the last phase; every other phase takes them from the next phase's first stage."""
     groups: list[list[Stage]] = []
     for st in stages:
         if st.segment == 0 or not groups or groups[-1][0].phase != st.phase:
@@ -91,10 +97,13 @@ def phase_spans(
         stop = min(stop, end)
         if stop <= start:
             continue
-        nxt = groups[i + 1][0].optimum if i + 1 < len(groups) else final_optimum
+        later = groups[i + 1][0] if i + 1 < len(groups) else None
+        optimum = later.optimum if later is not None else final_optimum
+        bound = later.at_bound if later is not None else final_at_bound
         head = g[0]
-        optimum = nxt if head.kind in OPTIMUM_KINDS else None
-        spans.append(PhaseSpan(head.phase, head.kind, head.name, start, stop, tuple(g), optimum))
+        seeks = head.kind in OPTIMUM_KINDS
+        spans.append(PhaseSpan(head.phase, head.kind, head.name, start, stop, tuple(g),
+                               optimum if seeks else None, bound if seeks else None))  # fmt: skip
     return spans
 
 
@@ -162,7 +171,7 @@ def summarize_phase(
         index=span.index, kind=span.kind, name=span.name, start=span.start, end=span.end,
         mean_power=_finite(tot.mean_power), peak_power=_finite(tot.peak_power),
         work=_finite(tot.work), mean_w=_finite(tot.mean_w), optimum_w=span.optimum,
-        profile=fit, detail=detail,
+        at_bound=span.at_bound, profile=fit, detail=detail,
     )  # fmt: skip
 
 

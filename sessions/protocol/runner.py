@@ -310,6 +310,7 @@ class ProtocolRunner:
             next_kind=nxt.kind if nxt is not None else (None if last else STOP),
             next_name=phase_label(nxt, i + 1) if nxt is not None else None,
             optimum=seeking.optimum(self.seeker) if self.seek_begun else None, profile=profile,
+            at_bound=seeking.at_bound(self.seeker) if self.seek_begun else None,
         )  # fmt: skip
         self.changed = stage
         self.log.append(stage)

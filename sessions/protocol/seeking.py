@@ -4,6 +4,7 @@ A seeker without tracking is held at its optimum instead."""
 
 from __future__ import annotations
 
+from sessions.codes import BOUNDS
 from sessions.seekers import Seeker
 
 
@@ -14,6 +15,13 @@ def optimum(seeker: Seeker) -> float | None:
     if isinstance(found, float):
         return found
     return seeker.target if seeker.evaluations or seeker.done else None
+
+
+def at_bound(seeker: Seeker) -> str | None:
+    """Where the seeker's search stands against the trainer's bracket now: "lower" or "upper"
+    when its best point is at that edge with the power still rising outward, else None."""
+    side = getattr(seeker, "at_bound", None)
+    return side if side in BOUNDS else None
 
 
 def can_track(seeker: Seeker) -> bool:

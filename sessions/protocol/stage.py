@@ -34,6 +34,7 @@ class Stage:
     next_kind: str | None = None  # the phase after this one
     next_name: str | None = None
     optimum: float | None = None  # the seeker's optimum at this time, if it has one
+    at_bound: str | None = None  # the seeker's at_bound at this time (lower, upper), if any
     profile: tuple[tuple[float, float, float, float], ...] = ()  # first segment of a profile:
     # its plan's steps (velocity, start, settled, end), times from the phase's start
 

@@ -255,6 +255,7 @@ class SessionPhase(Base):
     __tablename__ = "session_phases"
     __table_args__ = (
         CheckConstraint(_in("kind", PHASE_KINDS), name="kind"),
+        CheckConstraint(_in("at_bound", BOUNDS), name="at_bound"),
         UniqueConstraint("session_id", "position"),
     )
 
@@ -271,6 +272,7 @@ class SessionPhase(Base):
     work: Mapped[float | None] = mapped_column(Double)
     mean_w: Mapped[float | None] = mapped_column(Double)
     optimum_w: Mapped[float | None] = mapped_column(Double)
+    at_bound: Mapped[str | None] = mapped_column(String(8))  # lower, upper (0005)
     detail: Mapped[dict[str, Any]] = mapped_column(JSON)
 
 

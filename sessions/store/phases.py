@@ -14,7 +14,7 @@ from typing import Any
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session as OrmSession
 
-from sessions.codes import PHASE_KINDS
+from sessions.codes import BOUNDS, PHASE_KINDS
 from sessions.protocol.analysis import PhaseResult
 from sessions.store import validate as v
 from sessions.store.database import Database
@@ -110,6 +110,9 @@ class PhaseRepository:
             "work": v.number("work", result.work),
             "mean_w": v.number("mean_w", result.mean_w),
             "optimum_w": v.optional_number("optimum_w", result.optimum_w, gt=0),
+            "at_bound": (
+                None if result.at_bound is None else v.choice("at_bound", result.at_bound, BOUNDS)
+            ),
             "detail": v.json_object("detail", result.detail),
         }
         with self._db.session(write=True) as s:

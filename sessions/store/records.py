@@ -127,6 +127,7 @@ class PhaseRecord(Record):
     work: float | None
     mean_w: float | None
     optimum_w: float | None
+    at_bound: Bound | None = None  # the phase's optimum is the bracket's edge (seek, train)
     detail: dict[str, Any]
 
 

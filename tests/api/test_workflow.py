@@ -112,6 +112,8 @@ def test_the_protocol_runs_to_rest_and_its_phases_are_stored(
     # session's, and the search's own is close to it
     assert train["optimum_w"] == pytest.approx(s["optimum_w"])
     assert seek["optimum_w"] == pytest.approx(s["optimum_w"], rel=0.05)
+    # converged inside the bracket: no phase's optimum is an edge
+    assert [p["at_bound"] for p in phases] == [None] * 4 and s["at_bound"] is None
     assert train["t_end"] - train["t_start"] == pytest.approx(2.0 + 2 * 20.0)
     assert [i["interval"] for i in train["detail"]["intervals"]] == [1, 2]
     assert cool["t_end"] - cool["t_start"] >= 5.0 + 1.0
@@ -288,15 +290,21 @@ def pg_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProces
         pg.drop_database(url)
 
 
-def test_a_protocol_session_on_postgresql(pg_server: ServerProcess) -> None:
+def test_a_protocol_session_on_postgresql_whose_seek_ends_at_the_bracket(
+    pg_server: ServerProcess,
+) -> None:
+    # w* = 7.7 rad/s (the Hill person's closed form) above the trainer's [1, 3] rad/s: the
+    # seek phase ends at the upper edge, and its stored phase says so (the others do not)
     protocol = {"phases": [{"kind": "warmup", "duration": 3.0},
                            {"kind": "seek", "duration": 40.0, "hold": 0.5},
                            {"kind": "cooldown", "duration": 3.0}]}  # fmt: skip
+    person = {"kind": "hill", "tau0": 3.0, "wmax": 7.7 / 0.30902}
     assert pg_server.database_url.startswith("postgresql")
     with pg_server.client("trainer") as c:
-        user = c.post("/api/v1/users", json={"name": "Pia", "sim_profile": HILL}).json()
+        user = c.post("/api/v1/users", json={"name": "Pia", "sim_profile": person}).json()
         r = c.post("/api/v1/sessions", json={"user_id": user["id"], "protocol": protocol,
-                                             "seeker": QUICK, "seed": 1})  # fmt: skip
+                                             "seeker": {"bracket": [1.0, 2.0, 3.0]},
+                                             "seed": 1})  # fmt: skip
         assert r.status_code == 201, r.text
         sid = r.json()["id"]
     body = pg_server.wait_status(sid, ENDED, 90)
@@ -304,6 +312,9 @@ def test_a_protocol_session_on_postgresql(pg_server: ServerProcess) -> None:
     phases = wait_phases(pg_server, sid)
     assert [p["kind"] for p in phases] == ["warmup", "seek", "cooldown"]
     assert all(p["mean_power"] is not None for p in phases)
+    assert [p["at_bound"] for p in phases] == [None, "upper", None]
+    assert phases[1]["optimum_w"] == pytest.approx(3.0, rel=0.03)
+    assert phases[1]["t_end"] - phases[1]["t_start"] < 40.0  # it ended there, by itself
     with pg_server.client("viewer") as c:
         fit = decode_fit(c.get(f"/api/v1/sessions/{sid}/activity.fit").content)
         assert [lap["phase"] for lap in fit["lap"]] == [p["name"] for p in phases]

@@ -264,3 +264,30 @@ def test_a_trainers_request_with_a_protocol() -> None:
     with pytest.raises(RequestError) as err:  # a template is resolved by the caller, or refused
         session_config(SessionStart(user_id=1, template_id=3), rig)
     assert err.value.field == "template_id"
+
+
+@pytest.mark.parametrize(("bracket", "side"), [([1.0, 2.0, 3.0], "upper"), ([5.0, 7.0, 9.0], None)])
+def test_a_seek_phase_that_ends_at_the_brackets_edge_says_so(
+    bracket: list[float], side: str | None
+) -> None:
+    # a Hill person with w* = 7.7 rad/s (their own closed form): above [1, 3] the seek phase
+    # ends on the upper edge and its stored summary says so; inside [5, 9] it ends on the peak
+    # and says nothing. Phases that do not seek never carry a bound.
+    user = {"kind": "hill", "tau0": 3.0, "wmax": 7.7 / 0.30902}
+    protocol = {"phases": [{"kind": "warmup", "duration": 2.0},
+                           {"kind": "seek", "duration": 90.0, "hold": 0.5},
+                           {"kind": "cooldown", "duration": 2.0}]}  # fmt: skip
+    r = run_simulation(session(protocol, user=user, seeker={"bracket": bracket}, rate=500.0,
+                               machine={"max_velocity": 12.0}))  # fmt: skip
+    w_star, _ = r.user.optimum(r.cfg.seeker.rho)
+    assert w_star == pytest.approx(7.7, rel=1e-3) and (w_star > bracket[2]) == (side is not None)
+    end = float(r.column("t")[-1]) + r.cfg.dt
+    spans = phase_spans(r.stages, end, r.progress.target, r.progress.at_bound)
+    warm, seek, cool = (summarize_phase(columns(r), s) for s in spans)
+    assert seek.end - seek.start < 90.0  # it ended by itself: at the edge, or on the peak
+    assert (warm.at_bound, seek.at_bound, cool.at_bound) == (None, side, None)
+    assert seek.export_phase().at_bound == side
+    if side == "upper":
+        assert seek.optimum_w == pytest.approx(bracket[2], rel=0.03)
+    else:
+        assert seek.optimum_w == pytest.approx(w_star, rel=0.06)

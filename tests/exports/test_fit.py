@@ -25,7 +25,7 @@ FIT_EPOCH = datetime(1989, 12, 31, tzinfo=UTC)
 START = datetime(2026, 3, 1, 9, 30, 12, 250_400, tzinfo=UTC)
 PHASES = (
     Phase("warm-up", 0.0, 8.0, "warmup"),
-    Phase("seek γ ≤ 6 rad/s — Zoë", 8.0, 30.0, "seek", optimum_w=3.05),
+    Phase("seek γ ≤ 6 rad/s — Zoë", 8.0, 30.0, "seek", optimum_w=3.05, at_bound="upper"),
     Phase("work 1", 30.0, 34.5, "work", mean_power=2.5, peak_power=3.25, work=11.0),
     Phase("rest 1", 34.5, 36.0, "rest"),
     Phase("cool-down", 36.0, 40.0, "cooldown"),
@@ -116,6 +116,7 @@ def test_laps_match_the_phases(session: dict[str, np.ndarray]) -> None:
             assert "optimum_cadence" not in lap
         else:
             assert lap["optimum_cadence"] == np.float32(ph.optimum_w * RPM)
+        assert lap.get("optimum_at_bound") == ph.at_bound
     ends = [fit_seconds(lap["timestamp"]) for lap in laps]
     starts = [fit_seconds(lap["start_time"]) for lap in laps]
     assert starts[1:] == ends[:-1]  # contiguous
@@ -137,7 +138,7 @@ def test_one_lap_and_the_totals_without_phases(session: dict[str, np.ndarray]) -
     assert ses["total_work"] == 105
     assert ses["avg_power"] == 3 and ses["max_power"] == 3
     assert ses["total_calories"] == round(104.6 / 4184 / 0.24)
-    assert ses["optimum_cadence"] == np.float32(3.1 * RPM)
+    assert ses["optimum_cadence"] == np.float32(3.1 * RPM) and "optimum_at_bound" not in ses
     assert ses["num_laps"] == 1 and ses["sport"] == "fitness_equipment"
     rpm = float(session["w"].mean()) * RPM
     assert ses["avg_cadence"] + ses["avg_fractional_cadence"] == round(rpm * 128) / 128
@@ -146,6 +147,9 @@ def test_one_lap_and_the_totals_without_phases(session: dict[str, np.ndarray]) -
     assert msgs["file_id"][0]["time_created"] == START.replace(microsecond=0)
     events = [(e["event"], e["event_type"]) for e in msgs["event"]]
     assert events == [("timer", "start"), ("timer", "stop_all")]
+    edge = summary.model_copy(update={"optimum_w": 1.0, "at_bound": "lower", "converged": False})
+    ses = decode(encode_fit(START, session, (), summary=edge))["session"][0]
+    assert ses["optimum_cadence"] == np.float32(1.0 * RPM) and ses["optimum_at_bound"] == "lower"
 
 
 def test_totals_computed_from_telemetry_without_a_summary(session: dict[str, np.ndarray]) -> None:

@@ -17,6 +17,7 @@ from sessions.config import UserConfig
 from sessions.exports.data import ExportError, Phase
 from sessions.exports.report import (
     CHART_COLUMNS,
+    EDGE_NOTE,
     NO_PROFILE,
     ReportData,
     missing_glyphs_quiet,
@@ -119,6 +120,24 @@ def test_one_a4_page_with_the_name_and_the_optimum(run: SimulationResult) -> Non
     for ph in ("warm-up", "seek", "cool-down"):
         assert ph in text
     assert NO_PROFILE in text  # no profile phase in this session
+
+
+def test_an_optimum_at_the_brackets_edge_reads_as_a_bound(run: SimulationResult) -> None:
+    inside = flat(pdf_text(render_report(data(run)))[1])
+    assert "≥" not in inside and "≤" not in inside and EDGE_NOTE not in inside
+    phases = (
+        Phase("warm-up", 0, 5, "warmup"),
+        Phase("seek", 5, 20, "seek", optimum_w=6.0, at_bound="upper"),
+        Phase("train", 20, 35, "train", optimum_w=2.5),
+        Phase("cool-down", 35, 40, "cooldown"),
+    )
+    text = flat(pdf_text(render_report(data(run, phases=phases, velocity_unit="rad/s")))[1])
+    assert "≥ 6 rad/s" in text and "≥ 2.5" not in text and "2.5 rad/s" in text
+    assert EDGE_NOTE in text
+    # the session's own optimum at the lower edge
+    low = summary_of(run).model_copy(update={"optimum_w": 1.0, "at_bound": "lower"})
+    text = flat(pdf_text(render_report(data(run, summary=low, velocity_unit="rad/s")))[1])
+    assert "≤ 1 rad/s" in text and EDGE_NOTE in text
 
 
 def test_velocity_in_rad_s_and_no_w_per_kg_without_a_mass(run: SimulationResult) -> None:

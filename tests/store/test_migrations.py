@@ -12,6 +12,7 @@ from alembic.migration import MigrationContext
 from sqlalchemy import inspect
 
 from server.cli import main
+from sessions.config import SessionConfig
 from sessions.store import Store, StoreError, open_store
 from sessions.store.database import create_store_engine
 from sessions.store.migrate import MIGRATIONS, head_revision
@@ -44,7 +45,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         with pytest.raises(StoreError, match="db upgrade"):
             open_store(db_url, upgrade=False)
         st.upgrade()
-        assert st.current_revision() == head_revision() == "0004"
+        assert st.current_revision() == head_revision() == "0005"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"}
         assert diff == []
@@ -53,7 +54,7 @@ def test_upgrade_from_empty_downgrade_and_upgrade_again(db_url: str) -> None:
         assert st.current_revision() is None
         assert _schema(db_url)[0] <= {"alembic_version"}
         st.upgrade()
-        assert st.current_revision() == "0004"
+        assert st.current_revision() == "0005"
         tables, diff = _schema(db_url)
         assert tables == TABLES | {"alembic_version"} and diff == []
         again = st.users.create("after")
@@ -74,6 +75,7 @@ def test_migrations_ship_with_the_package() -> None:
         "0002_auth_tokens_sim_profile.py",
         "0003_session_search.py",
         "0004_protocols_phases_preferences.py",
+        "0005_phase_at_bound.py",
     ]
     assert not list(Path(MIGRATIONS).rglob("alembic.ini"))
 
@@ -90,10 +92,10 @@ def test_db_command_upgrade_and_current(
         assert "revision none (empty)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
     out = capsys.readouterr().out
-    assert out.strip().endswith("revision 0004 (newest)")
+    assert out.strip().endswith("revision 0005 (newest)")
     monkeypatch.delenv("ERGOSEEK_DATABASE_URL")
     assert main(["db", "current", "--url", db_url]) == 0
-    assert "revision 0004 (newest)" in capsys.readouterr().out
+    assert "revision 0005 (newest)" in capsys.readouterr().out
 
 
 def test_upgrade_from_the_first_revision_keeps_the_data(db_url: str) -> None:
@@ -145,7 +147,7 @@ def test_0003_and_0004_up_and_down_keep_the_sessions_before_them(db_url: str) ->
         with st._db.session(write=False) as s:
             row = s.execute(sa.text("SELECT optimum_w, at_bound, regret FROM sessions")).one()
         assert tuple(row) == (3.1, None, None)
-        st.upgrade("0004")
+        st.upgrade()  # 0004, and 0005 (the phases' bound) that today's models read
         (old,) = st.sessions.list().items
         assert old.optimum_w == 3.1 and old.regret is None and old.at_bound is None
         assert old.wd_converged is None and old.t_converged is None and old.optimum_t is None
@@ -164,6 +166,41 @@ def test_0003_and_0004_up_and_down_keep_the_sessions_before_them(db_url: str) ->
             cols = {c["name"] for c in inspect(s.connection()).get_columns("sessions")}
             (optimum,) = s.execute(sa.text("SELECT optimum_w FROM sessions")).one()
         assert "regret" not in cols and "at_bound" not in cols and optimum == 3.1
+        st.upgrade()
+        assert _schema(db_url)[1] == []
+    finally:
+        st.close()
+
+
+def test_0005_adds_each_phases_bound_and_keeps_the_phases_before_it(db_url: str) -> None:
+    # a phase stored at 0004 reads back at 0005 with no bound (unknown: NULL); a bound stored
+    # at 0005 is checked by the database itself; down to 0004 the column goes, the phase stays
+    st = Store(db_url, password_hasher=FAST_HASHER)
+    try:
+        st.upgrade("0004")
+        user = st.users.create("Ada")
+        sid = st.sessions.start(user.id, SessionConfig.model_validate({"duration": 60})).id
+        with st._db.session(write=True) as s:  # as 0004's code wrote it
+            s.execute(
+                sa.text(
+                    "INSERT INTO session_phases (session_id, position, kind, name, t_start,"
+                    " detail) VALUES (:s, 0, 'seek', 'seek 1', 0.0, '{}')"
+                ),
+                {"s": sid},
+            )
+        st.upgrade("0005")
+        (phase,) = st.phases.list(sid)
+        assert (phase.kind, phase.at_bound) == ("seek", None)
+        with st._db.session(write=True) as s:
+            s.execute(sa.text("UPDATE session_phases SET at_bound = 'upper'"))
+        assert st.phases.list(sid)[0].at_bound == "upper"
+        with pytest.raises(sa.exc.IntegrityError), st._db.session(write=True) as s:
+            s.execute(sa.text("UPDATE session_phases SET at_bound = 'sideways'"))
+        st.downgrade("0004")
+        with st._db.session(write=False) as s:
+            cols = {c["name"] for c in inspect(s.connection()).get_columns("session_phases")}
+            (name,) = s.execute(sa.text("SELECT name FROM session_phases")).one()
+        assert "at_bound" not in cols and name == "seek 1"
         st.upgrade()
         assert _schema(db_url)[1] == []
     finally:

@@ -151,11 +151,14 @@ def _session(store: Store, protocol: dict | None = INTERVALS) -> tuple[int, int]
     return user.id, store.sessions.start(user.id, cfg).id
 
 
-def _result(index: int, kind: str, start: float, end: float, power: float) -> PhaseResult:
+def _result(
+    index: int, kind: str, start: float, end: float, power: float, at_bound: str | None = None
+) -> PhaseResult:
     return PhaseResult(
         index=index, kind=kind, name=kind, start=start, end=end, mean_power=power,
         peak_power=2 * power, work=power * (end - start), mean_w=3.0,
-        optimum_w=3.1 if kind in ("seek", "train") else None, detail={"note": kind},
+        optimum_w=3.1 if kind in ("seek", "train") else None, at_bound=at_bound,
+        detail={"note": kind},
     )  # fmt: skip
 
 
@@ -172,10 +175,11 @@ def test_a_phase_begun_ends_the_one_before_and_gets_its_summary(store: Store) ->
     assert store.phases.close_open(sid, 131.5) == [1]
     # summaries come after the end, from the stored telemetry
     store.phases.summarize(sid, _result(0, "warmup", 0.0, 60.0, 1.0))
-    store.phases.summarize(sid, _result(1, "seek", 60.0, 131.5, 2.5))
+    store.phases.summarize(sid, _result(1, "seek", 60.0, 131.5, 2.5, at_bound="upper"))
     warm, seek = store.sessions.detail(sid).phases
     assert (warm.mean_power, warm.peak_power, warm.work, warm.optimum_w) == (1.0, 2.0, 60.0, None)
     assert (seek.t_end, seek.mean_power, seek.optimum_w) == (131.5, 2.5, 3.1)
+    assert (warm.at_bound, seek.at_bound) == (None, "upper")
     assert seek.detail == {"note": "seek"}
     with pytest.raises(ConflictError):  # a phase only begins in a running session
         store.phases.begin(sid, 2, "train", "train", 140.0)
@@ -192,6 +196,12 @@ def test_bad_phases_are_refused(store: Store) -> None:
     with pytest.raises(NotFoundError):
         store.phases.summarize(sid, _result(5, "seek", 0.0, 1.0, 1.0))
     assert store.phases.list(sid) == []
+    store.phases.begin(sid, 0, "seek", "x", 0.0)
+    with pytest.raises(StoreValueError) as err:
+        store.phases.summarize(sid, _result(0, "seek", 0.0, 1.0, 1.0, at_bound="sideways"))
+    assert err.value.field == "at_bound"
+    (phase,) = store.phases.list(sid)
+    assert phase.mean_power is None and phase.at_bound is None  # nothing of it was stored
 
 
 # -- progress --------------------------------------------------------------------------------

@@ -10,11 +10,13 @@ from __future__ import annotations
 import numpy as np
 import viser
 
+from server.service.phases import session_phases
 from sessions.store import NotFoundError, SessionRecord, UserRecord
 from sessions.telemetry import NAMES
 from webui.charts import HISTORY_POINTS, SessionCharts, plottable, trend_chart, trend_scales
 from webui.context import Context, relabel
 from webui.escape import Markdown, MarkdownBox, md, md_join, md_lines
+from webui.tabs.phases import PhasesPanel
 from webui.tabs.progress import ProgressPanel
 from webui.units import Units
 
@@ -127,6 +129,7 @@ class HistoryTab:
         self.progress = ProgressPanel(gui, ctx, units)
         self.session = gui.add_dropdown("Session", (NO_SESSIONS,))
         self.detail = MarkdownBox(gui, md(" "))
+        self.phases = PhasesPanel(gui, units)
         self.charts = SessionCharts(gui)
         self.user.on_update(lambda _: ctx.background(self.load_user))
         self.session.on_update(lambda _: ctx.background(self.load_session))
@@ -168,18 +171,22 @@ class HistoryTab:
         session_id = self._sessions.get(self.session.value)
         if session_id is None:
             self.detail.show(md(" "))
+            self.phases.clear()
             self.charts.clear()
             return
         store = self.ctx.store
         try:
             record = store.sessions.get(session_id)
             data = store.telemetry.load(session_id, points=HISTORY_POINTS)
+            phases = session_phases(store, session_id)
         except NotFoundError:
             self.detail.show(md("Session #{} is gone.", session_id))
+            self.phases.clear()
             return
         bucket = md(" (min/max per bucket)") if data.decimated else md("")
         charts = md("Charts: {} of {} samples{}", len(data), data.samples, bucket)
         self.detail.show(md_lines([session_markdown(record, self.units), charts]))
+        self.phases.show(phases)
         self.charts.show({name: data.columns[i] for i, name in enumerate(NAMES)})
 
     def users_changed(self, options: tuple[str, ...]) -> None:
