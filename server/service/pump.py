@@ -210,12 +210,14 @@ class Pump:
             task.add_done_callback(self._later.discard)
 
     async def _summarize_when_stored(self, session: LiveSession, position: int, nxt: Any) -> None:
-        """Summarize phase ``position`` once the telemetry up to ``nxt.start`` is stored (or
-        the session has ended: then :meth:`finish` summarizes it)."""
+        """Summarize phase ``position`` once the next phase's first sample is stored (or the
+        session has ended: then :meth:`finish` summarizes it). Not one period earlier: the
+        stored telemetry's end would then cut the phase a period (or a rounding) short of
+        where the next one begins."""
         dt = session.cfg.dt
         while not session.ended.is_set():
             stored = session.recorder.stored_until
-            if stored is not None and stored >= nxt.start - 1.5 * dt:
+            if stored is not None and stored >= nxt.start - 0.5 * dt:  # (on the 1/rate grid)
                 break
             await asyncio.sleep(0.2)
         else:
