@@ -154,6 +154,7 @@ def test_estop_latches_until_reset(server: ServerProcess) -> None:
         server.wait_status(again.json()["id"], {"completed"}, 15)
 
 
+@pytest.mark.realtime  # a pty's latency under two other workers' load aborted it
 def test_a_session_through_the_emulated_odrive(tmp_path: Path) -> None:
     # --machine odrive-emulator: the worker speaks the ODrive ASCII protocol over a real pty.
     # A loaded 2-core VM stalls a pty for tens of ms: wider timeouts and 500 Hz here (the
