@@ -17,6 +17,8 @@ from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.worker import Worker, WorkerOptions
 from testing.live import follow, odrive, scenario, wait_for
 
+pytestmark = pytest.mark.realtime  # a session over the emulated drive's pty: run alone
+
 FAULTS = {  # injected → words the session's reason must hold
     "motor": "axis0",
     "overspeed": "overspeed",

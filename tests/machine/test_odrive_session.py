@@ -31,6 +31,8 @@ from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerOptions
 from testing.live import follow, odrive, scenario, wait_for
 
+pytestmark = pytest.mark.realtime  # a session over the emulated drive's pty: run alone
+
 GEAR, DIRECTION = 4.0, -1
 
 

@@ -74,6 +74,7 @@ def test_run_bad_input_is_one_line_and_status_2(quick, tmp_path):
         assert lines[0].startswith("ergoseek run: error:")
 
 
+@pytest.mark.realtime  # a session over the emulated drive's pty: alone, after the parallel rooms
 def test_emulate_odrive_then_run_against_it(quick):
     emu = subprocess.Popen(
         [*CLI, "emulate-odrive", "--scenario", quick(),

@@ -170,6 +170,7 @@ def _gone(pid: int) -> bool:
         return True
 
 
+@pytest.mark.realtime  # a session over the emulated drive's pty: alone, after the parallel rooms
 def test_parent_death_zeroes_the_torque_and_ends_the_worker():
     with EmulatorProcess(EmulatorConfig()) as emu:
         parent = subprocess.Popen(
