@@ -48,7 +48,6 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from scipy import optimize, special, stats
 
 from sessions.config import FilterConfig
 
@@ -124,6 +123,8 @@ def filter_settle_time(jump: float, tolerance: float, filt: FilterConfig = DEFAU
     jump = abs(jump)
     if jump <= tolerance:
         return 0.0
+    from scipy import special  # here, not at the top: see _fit_hill
+
     return float(special.gammaincinv(filt.order, 1.0 - tolerance / jump)) / filt.pole
 
 
@@ -467,6 +468,10 @@ def _fit_hill(w: np.ndarray, y: np.ndarray, se: np.ndarray, start: _Solution) ->
     lo, hi = math.log(A_BOUNDS[0]), math.log(A_BOUNDS[1])
     assert best is not None
     best[2] = min(max(best[2], lo + 1e-9), hi - 1e-9)
+    # scipy is imported where a fit needs it: the server, its CLI and every spawned worker
+    # import this module (through the protocol runner), and scipy takes ~1.5 CPU-s to load
+    from scipy import optimize
+
     sol = optimize.least_squares(
         resid,
         best,
@@ -495,7 +500,9 @@ def _choose(lin: _Solution, hill: _Solution | None, scale: float) -> tuple[_Solu
     if hill.ssr <= tiny:
         return (lin, 1.0) if hill.at_bound else (hill, 0.0)
     f = max(lin.ssr - hill.ssr, 0.0) / (hill.ssr / hill.dof)
-    p = float(stats.f.sf(f, 1, hill.dof))
+    from scipy import special
+
+    p = float(special.fdtrc(1, hill.dof, f))  # the F(1, dof) distribution's survival
     return (hill if p < F_TEST_ALPHA and not hill.at_bound else lin), p
 
 
@@ -590,7 +597,10 @@ def _result(
 ) -> ProfileFit:
     rchi2 = sol.ssr / sol.dof if sol.dof > 0 else math.nan
     cov = sol.cov * (rchi2 if sol.dof > 0 else math.nan)
-    t = float(stats.t.ppf(0.5 + confidence / 2.0, sol.dof)) if sol.dof > 0 else math.nan
+    from scipy import special
+
+    q = 0.5 + confidence / 2.0
+    t = float(special.stdtrit(sol.dof, q)) if sol.dof > 0 else math.nan  # Student's t quantile
     th = sol.theta
 
     def derived(f: Callable[[np.ndarray], float]) -> Estimate:

@@ -99,3 +99,20 @@ def test_each_room_of_the_tests_has_its_conftest() -> None:
         "engine", "machine", "worker", "store", "api", "dashboard", "docker"
     }  # fmt: skip
     assert all((p / "conftest.py").exists() for p in rooms), [p.name for p in rooms]
+
+
+def test_a_server_start_and_a_worker_load_no_plotting_or_fitting_library() -> None:
+    """The server, its CLI and every spawned worker start often (each test server, each worker
+    replaced): matplotlib (the PDF report) and scipy's fitting and statistics (the profile fit)
+    load where they are used, not at import (measured: 4.0 → 2.2 CPU-s for ``server.app``,
+    1.9 → 0.5 for the worker)."""
+    import subprocess
+    import sys
+
+    heavy = ("matplotlib", "scipy.optimize", "scipy.stats")
+    for module in ("server.app", "sessions.worker.process", "server.cli"):
+        code = f"import sys, {module}; print(' '.join(m for m in {heavy!r} if m in sys.modules))"
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+        )
+        assert out.stdout.strip() == "", f"importing {module} loads {out.stdout.strip()}"

@@ -21,7 +21,6 @@ from server.service.phases import summarize_phases
 from sessions.exports.data import Phase
 from sessions.exports.fit import CHANNELS as FIT_CHANNELS
 from sessions.exports.fit import FitOptions, encode_fit
-from sessions.exports.report import ReportData, render_report
 from sessions.protocol.analysis import profile_from_dict
 from sessions.protocol.config import Protocol, describe
 from sessions.store import ConflictError, PhaseRecord, SessionDetail, Store
@@ -81,6 +80,9 @@ def report_pdf(
     velocity_unit: VelocityUnit = "rpm",
     timezone: tzinfo | None = None,
 ) -> bytes:
+    # matplotlib (~1 CPU-s to load) only where a report is drawn, not in every server start
+    from sessions.exports.report import ReportData, render_report
+
     detail = ended(store, session_id)
     s = detail.session
     user = store.users.get(s.user_id)
