@@ -46,12 +46,33 @@ def image(engine: ds.Engine) -> str:
 
 
 class Demo:
-    def __init__(self, engine: ds.Engine, name: str, port: int, password: str) -> None:
+    def __init__(self, engine: ds.Engine, image: str, name: str, port: int, password: str) -> None:
         self.engine = engine
+        self.image = image
         self.name = name
+        self.volume = f"{name}-data"
+        self.port = port
         self.url = f"http://127.0.0.1:{port}"
         self.ws_url = f"ws://127.0.0.1:{port}"
         self.password = password
+
+    def run(self) -> None:
+        """``docker run`` as the README says: the demo with its data on a named volume."""
+        self.engine.docker(
+            "run", "--detach", "--init", "--name", self.name, "--label", f"{ds.SMOKE_LABEL}=1",
+            "--publish", f"127.0.0.1:{self.port}:8000",
+            "--env", f"ERGOSEEK_DEMO_PASSWORD={self.password}",
+            "--volume", f"{self.volume}:/data",
+            self.image,
+            timeout=120,
+        )  # fmt: skip
+
+    def remove(self) -> None:
+        """The container gone (its named volume stays)."""
+        self.engine.docker("rm", "--force", self.name, check=False, timeout=60)
+
+    def exec(self, *argv: str) -> str:
+        return self.engine.docker("exec", self.name, *argv, timeout=30).stdout.strip()
 
     def state(self) -> dict[str, Any]:
         out = self.engine.docker("inspect", "--format", "{{json .State}}", self.name, timeout=30)
@@ -64,22 +85,16 @@ class Demo:
 
 @pytest.fixture
 def demo(engine: ds.Engine, image: str) -> Iterator[Demo]:
-    """The image run as the README's `docker run` (an anonymous /data volume); removed with
-    its volume afterwards, failed or not."""
-    port = ds.free_port()
-    password = secrets.token_urlsafe(18)
+    """The image run as the README's `docker run` (a named /data volume); the container and
+    its volume removed afterwards, failed or not."""
     name = f"ergoseek-smoke-{os.getpid()}"
-    engine.docker("rm", "--force", "--volumes", name, check=False, timeout=60)
-    engine.docker(
-        "run", "--detach", "--init", "--name", name, "--label", f"{ds.SMOKE_LABEL}=1",
-        "--publish", f"127.0.0.1:{port}:8000",
-        "--env", f"ERGOSEEK_DEMO_PASSWORD={password}",
-        image,
-        timeout=120,
-    )  # fmt: skip
-    d = Demo(engine, name, port, password)
+    d = Demo(engine, image, name, ds.free_port(), secrets.token_urlsafe(18))
+    d.remove()
+    engine.docker("volume", "rm", "--force", d.volume, check=False, timeout=60)
+    d.run()
     try:
         yield d
     finally:
         print(f"---- container logs (last lines)\n{d.logs()}")
-        engine.docker("rm", "--force", "--volumes", name, check=False, timeout=60)
+        d.remove()
+        engine.docker("volume", "rm", "--force", d.volume, check=False, timeout=60)

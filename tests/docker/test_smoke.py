@@ -1,7 +1,8 @@
 """The Docker deliverable: ``docker/Dockerfile`` lints clean, ``docker/compose.yaml`` says what
 the README promises, and the image — built here with no registry, on a Debian base made with
 debootstrap, by a dockerd this test starts itself — serves the demo: healthy, a login, users, a
-simulated session over REST with live telemetry on the WebSocket, and a stored setpoint.
+simulated session over REST with live telemetry on the WebSocket, and a stored setpoint; it runs
+as uid 10001, which owns the data on its volume, and a new container on that volume has it all.
 
 The engine's data root (``/var/tmp/ergoseek-docker`` or ``$ERGOSEEK_DOCKER_CACHE``) is kept
 between runs as the cache of the base image and of the build's layers; the daemon, the
@@ -218,6 +219,29 @@ def test_demo_image_smoke(demo: Demo, capsys: pytest.CaptureFixture[str]) -> Non
         health = demo.state().get("Health", {})
     assert health.get("Status") == "healthy", health
     timings["smoke_s"] = round(time.monotonic() - t_run, 1)
+
+    # It runs as uid 10001, which owns everything it keeps on the volume ...
+    assert demo.exec("id", "-u") == "10001"
+    kept = demo.exec("find", "/data", "-printf", "%U:%G %p\\n").splitlines()
+    assert "10001:10001 /data/ergoseek.sqlite3" in kept, kept
+    assert all(line.startswith("10001:10001 ") for line in kept), kept
+    # ... and the data outlives the container: a new one on the same volume has it all.
+    t_again = time.monotonic()
+    demo.remove()
+    demo.run()
+    with httpx.Client(base_url=demo.url, timeout=15) as client:
+        _wait_healthy(demo, client)
+        r = client.post("/api/v1/auth/token", json={"login": "demo", "password": demo.password})
+        assert r.status_code == 200, r.text
+        client.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
+        again = client.get(f"/api/v1/sessions/{sid}")
+        assert again.status_code == 200, again.text
+        assert again.json()["session"] == record
+        r = client.get(f"/api/v1/users/{user['id']}/setpoints")
+        assert r.status_code == 200 and r.json()["current"] == current, r.text
+        r = client.get(f"/api/v1/sessions/{sid}/telemetry.csv")
+        assert r.status_code == 200 and r.text.count("\n") > 1000 * (SESSION_S - 5), r.text[:200]
+    timings["recreate_s"] = round(time.monotonic() - t_again, 1)
 
     with capsys.disabled():
         print(f"\ndocker smoke timings: {json.dumps(timings)}")
