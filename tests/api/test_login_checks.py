@@ -363,6 +363,38 @@ def test_identify_prefers_the_bearer_token(store: Store) -> None:
             assert (found.id if found else None, via) == (want, how)
 
 
+def test_login_checks_never_wait_behind_the_default_thread_pool(store: Store) -> None:
+    """identify_async runs on the checks' own threads: with the event loop's default pool
+    taken by blocked work (password hashing, exports), a token is still checked at once."""
+    from concurrent.futures import ThreadPoolExecutor
+    from threading import Event
+
+    viewer = account(store, "viewer")
+    tok, _ = store.tokens.issue(viewer.id, "bearer", timedelta(hours=1))
+    req = request(headers={"Authorization": f"Bearer {tok}"})
+    release = Event()
+
+    async def check() -> tuple[AccountRecord | None, str]:
+        loop = asyncio.get_running_loop()
+        busy = ThreadPoolExecutor(max_workers=1)
+        loop.set_default_executor(busy)
+        blocked = loop.run_in_executor(None, release.wait, 30.0)
+        try:
+            return await asyncio.wait_for(identify_async(req, store), 3.0)
+        finally:
+            release.set()
+            await blocked
+
+    found, via = run(check())
+    assert found is not None and (found.id, via) == (viewer.id, "bearer")
+
+
+def test_the_runtime_is_the_apps() -> None:
+    app = FastAPI()
+    app.state.runtime = object()
+    assert run(deps.get_runtime(request(app=app))) is app.state.runtime
+
+
 # -- the role dependencies --------------------------------------------------------------------
 def current(req: Request, store: Store, origins: list[str] | None = None) -> AccountRecord:
     settings = Settings(allowed_origins=origins or [])
@@ -461,7 +493,11 @@ def test_a_login_sets_the_device_cookie(store: Store) -> None:
         attrs = {a.strip().lower() for a in cookie.split(";")[1:]}
         assert name == DEVICE_COOKIE and lim.device(with_device(value), "viewer")
         assert f"max-age={DEVICE_COOKIE_DAYS * 86400}" in attrs
-        assert {"httponly", "samesite=strict", "path=/api/v1/auth"} <= attrs
+        assert {"httponly", "samesite=strict"} <= attrs
+        # a cookie's path matches case-sensitively (RFC 6265 5.1.4): only its name is not
+        paths = [a.strip().partition("=")[2] for a in cookie.split(";")[1:]
+                 if a.strip().lower().startswith("path=")]  # fmt: skip
+        assert paths == ["/api/v1/auth"]
         assert ("secure" in attrs) is secure
 
 
@@ -478,6 +514,24 @@ def test_wrong_passwords_are_counted_then_refused_even_when_right(store: Store) 
     assert 59 <= int(lower(e.value.headers)["retry-after"]) <= 60
     # another login name from the same address is not locked by these two
     assert log_in(store, lim, "admin", f"{PASSWORD} admin")[0].login == "admin"
+
+
+def test_a_lock_holds_to_its_last_fraction_of_a_second(store: Store) -> None:
+    # a one-second window: the wait left is always under a second, and still a lock
+    for _ in range(5):
+        lim = LoginLimiter(1, 1.0, KEY)
+        with pytest.raises(HTTPException):
+            log_in(store, lim, "viewer", "not the password")
+        failed = time.monotonic()
+        try:
+            log_in(store, lim, "viewer", f"{PASSWORD} viewer")
+        except HTTPException as e:
+            assert e.status_code == 429
+            assert lower(e.headers)["retry-after"] == "1"
+            return
+        # let in: only right if the second was over before the check (a loaded machine)
+        assert time.monotonic() - failed >= 1.0, "a login inside the locked second was let in"
+    pytest.fail("five tries all took more than a second: inconclusive")
 
 
 def test_a_success_resets_the_names_count(store: Store) -> None:
