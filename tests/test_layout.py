@@ -116,3 +116,16 @@ def test_a_server_start_and_a_worker_load_no_plotting_or_fitting_library() -> No
             [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
         )
         assert out.stdout.strip() == "", f"importing {module} loads {out.stdout.strip()}"
+
+
+def test_the_mutation_targets_name_tests_that_exist() -> None:
+    """A renamed test must not leave ``make mutation`` selecting nothing (mutmut then stops
+    in its first pass, after minutes)."""
+    from testing.mutation import MODULES
+
+    for target in MODULES:
+        for node in target.tests:
+            path, _, name = node.partition("::")
+            assert (ROOT / path).exists(), f"{target.name}: no {path}"
+            if name:
+                assert f"def {name}(" in (ROOT / path).read_text(), f"{target.name}: no {node}"

@@ -35,7 +35,7 @@ MODULES: tuple[Target, ...] = (
         (
             "tests/worker/test_stop_ramp.py",
             "tests/worker/test_safety.py",
-            "tests/worker/test_session.py::test_the_end_ramps_torque_out_and_never_drives",
+            "tests/worker/test_session.py::test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drives",
             "tests/worker/test_session.py::test_operator_stop_ends_the_session_early",
         ),
     ),
