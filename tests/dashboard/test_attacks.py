@@ -13,17 +13,33 @@ viser's wire format (:mod:`testing.viser_wire`) against ``ergoseek demo`` in its
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import os
+import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.frames import Frame, Opcode
 
 from sessions.config import SeekerConfig
 from testing.browser import TRAINER, DemoServer
-from testing.viser_wire import RawClient, gui_update, open_proxy, open_tcp, tcp_listeners
+from testing.viser_wire import (
+    CAMERA,
+    SUBPROTOCOL,
+    RawClient,
+    decode,
+    encode,
+    gui_update,
+    open_proxy,
+    open_tcp,
+    tcp_listeners,
+)
 
 COACH, COACH_PASSWORD = "coach2", "coach-two-Vq83-wkzP"
 CHIEF, CHIEF_PASSWORD = "chief", "chief-admin-Rt5b-Lm29-xQ"
@@ -267,3 +283,232 @@ def test_the_raw_client_tooling_reads_the_dashboard(server: DemoServer) -> None:
         for label in ("E-STOP", "Start", "Stop", "Reset", "User", "Duration (s)"):
             assert trainer.wait_for(label)
     assert Path(f"/proc/{server.pid}").exists()
+
+
+# -- the dashboard's caps: connections, slow readers (docs/dashboard.md, "Proxy and login") ---
+MAX_OPEN, MAX_PER_ACCOUNT = 32, 8  # "past 32 open dashboards (8 of one account)": refused
+
+
+def handshake(server: DemoServer, headers: dict[str, str]) -> RawClient | int:
+    """An open dashboard socket, or the HTTP status its handshake was refused with."""
+    try:
+        return open_proxy(server.ws_url + "/dashboard", headers)
+    except InvalidStatus as exc:
+        return exc.response.status_code
+
+
+def open_when_free(server: DemoServer, headers: dict[str, str], timeout: float = 10.0) -> RawClient:
+    """A socket as soon as a slot has been freed (the server counts a closed one out once its
+    relay has ended)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        got = handshake(server, headers)
+        if isinstance(got, RawClient):
+            return got
+        assert got == 403 and time.monotonic() < deadline, f"no slot freed ({got})"
+        time.sleep(0.1)
+
+
+def test_the_connection_caps_refuse_the_next_socket_until_one_closes(server: DemoServer) -> None:
+    heads = {login: login_headers(server, login) for login in (TRAINER, COACH, CHIEF, VIEWER_A)}
+    extra = login_headers(server, VIEWER_B)
+    opened: list[RawClient] = []
+    try:
+        for _ in range(MAX_PER_ACCOUNT):  # one account's eight: let in
+            got = handshake(server, heads[TRAINER])
+            assert isinstance(got, RawClient), got
+            opened.append(got)
+        assert handshake(server, heads[TRAINER]) == 403  # its ninth: refused
+        other = handshake(server, heads[COACH])  # (another account is not)
+        assert isinstance(other, RawClient), other
+        other.close()
+        opened.pop(0).close()  # one of the eight closes: the account may open one again
+        opened.append(open_when_free(server, heads[TRAINER]))
+        for login in (COACH, CHIEF, VIEWER_A):  # 32 open in all
+            for _ in range(MAX_PER_ACCOUNT):
+                got = handshake(server, heads[login])
+                assert isinstance(got, RawClient), (login, got)
+                opened.append(got)
+        assert handshake(server, extra) == 403  # the 33rd, of an account with none open
+        opened.pop().close()
+        opened.append(open_when_free(server, extra))
+        assert handshake(server, heads[COACH]) == 403  # full again
+        for client in opened:  # every one of them is a live dashboard socket
+            client.receive(0.05)
+            assert client.closed is None
+    finally:
+        for client in opened:
+            client.close()
+
+
+SEND_TIMEOUT_S = 10.0  # "a browser that does not take a frame for 10 s is dropped"
+
+
+def stuck_reader(server: DemoServer, headers: dict[str, str]) -> socket.socket:
+    """A dashboard socket that says hello and then never reads again: a plain TCP socket with
+    the smallest receive buffer, the WebSocket handshake done by hand."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # (before connect: the window)
+    sock.settimeout(10.0)
+    sock.connect(("127.0.0.1", server.port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    lines = [
+        "GET /dashboard HTTP/1.1",
+        f"Host: 127.0.0.1:{server.port}",
+        "Upgrade: websocket",
+        "Connection: Upgrade",
+        f"Sec-WebSocket-Key: {key}",
+        "Sec-WebSocket-Version: 13",
+        f"Sec-WebSocket-Protocol: {SUBPROTOCOL}",
+        *(f"{k}: {v}" for k, v in headers.items()),
+    ]
+    sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        chunk = sock.recv(1)  # byte by byte: nothing of the frames after it is taken
+        assert chunk, "closed during the handshake"
+        head += chunk
+    assert head.startswith(b"HTTP/1.1 101"), head
+    sock.sendall(Frame(Opcode.BINARY, encode(CAMERA)).serialize(mask=True))  # viser: a client
+    return sock
+
+
+def drained(sock: socket.socket, timeout: float) -> tuple[bool, int]:
+    """Read the socket until the server's end (EOF or reset) or the timeout: (ended, bytes)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)  # (a wider window: quicker)
+    sock.settimeout(1.0)
+    total, deadline = 0, time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            chunk = sock.recv(1 << 16)
+        except TimeoutError:
+            continue
+        except ConnectionResetError:
+            return True, total
+        if not chunk:
+            return True, total
+        total += len(chunk)
+    return False, total
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
+def test_a_browser_that_stops_reading_is_dropped_and_the_others_keep_receiving(
+    server: DemoServer,
+) -> None:
+    dropped = "dashboard socket of demo closed: the browser stopped reading"
+    assert dropped not in server.log()
+    with server.client(TRAINER) as api, dashboard(server, COACH) as good:
+        sid = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120}).json()["id"]
+        try:
+            slow = stuck_reader(server, login_headers(server, TRAINER))
+            rss0, began = rss_mb(server.pid), time.monotonic()
+            arrivals: list[float] = []
+            while dropped not in server.log():  # the good one reads on, the slow one never
+                assert time.monotonic() - began < SEND_TIMEOUT_S + 30.0, "never dropped"
+                try:
+                    frame = good.ws.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                arrivals.append(time.monotonic())
+                assert isinstance(frame, bytes) and decode(frame)
+            stuck_for, rss1 = time.monotonic() - began, rss_mb(server.pid)
+            assert stuck_for >= SEND_TIMEOUT_S  # (it had a full 10 s to take a frame)
+            # dropped: what reaches the slow socket now ends (a stuck one would stream on)
+            ended, backlog = drained(slow, 15.0)
+            slow.close()
+            assert ended, f"the slow socket still streams ({backlog} bytes read)"
+            # the others never waited for it: frames all along, ~25 a second
+            gaps = np.diff([began, *arrivals])
+            assert len(arrivals) >= 10 * stuck_for and gaps.max() < 1.0, (len(arrivals), gaps.max())
+            assert rss1 - rss0 < 64, (rss0, rss1)  # bounded by the drop: no unbounded backlog
+            good.receive(1.0)
+            assert good.closed is None
+            assert good.receive(1.0)  # and still receiving after the drop
+        finally:
+            api.post(f"/api/v1/sessions/{sid}/stop")
+    assert wait_state(server, "idle", 30.0) == "idle"
+
+
+def disabled(client: RawClient, uuid: str) -> bool:
+    """Whether the client was last told that the element is disabled."""
+    now = bool(next(m["props"]["disabled"] for m in client.elements() if m["uuid"] == uuid))
+    for update in client.updates_of(uuid):
+        now = bool(update.get("disabled", now))
+    return now
+
+
+def wait_disabled(client: RawClient, uuid: str, wanted: bool, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while disabled(client, uuid) != wanted:
+        assert time.monotonic() < deadline, f"Start never became disabled={wanted}"
+        client.receive(0.2)
+
+
+def said(messages: list[dict[str, Any]]) -> str:
+    """Everything the dashboard wrote in these messages: its texts' updates (viser sends a
+    markdown element's text as ``_markdown``, an HTML element's as ``content``)."""
+    texts = []
+    for m in messages:
+        if m.get("type") == "GuiUpdateMessage":
+            texts += [str(m["updates"][k]) for k in ("_markdown", "content") if k in m["updates"]]
+    return " ".join(texts)
+
+
+def session_ids(server: DemoServer) -> set[int]:
+    with server.client(TRAINER) as api:
+        return {s["id"] for s in api.get("/api/v1/sessions", params={"limit": 100}).json()["items"]}
+
+
+def test_start_is_disabled_while_a_session_runs_and_a_press_starts_nothing(
+    server: DemoServer,
+) -> None:
+    assert wait_state(server, "idle") == "idle"
+    with dashboard(server, COACH) as trainer:
+        start = trainer.wait_for("Start", "GuiButtonMessage")
+        trainer.send(gui_update(trainer.wait_for("User"), value=ADA))
+        wait_disabled(trainer, start, False)
+        with server.client(TRAINER) as api:  # another trainer starts one over REST
+            r = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120})
+            assert r.status_code == 201, r.text
+            running = r.json()["id"]
+        try:
+            wait_disabled(trainer, start, True)
+            before = session_ids(server)
+            for _ in range(3):  # a press: what a browser would send for a click
+                trainer.send(gui_update(start, value=True))
+            after_press = trainer.receive(1.5)
+            # dropped in the view (a disabled element takes no value): the Start callback
+            # never ran, so it never even said "starting…" or "Not started: …"
+            assert "starting…" not in said(after_press) and "Not started" not in said(after_press)
+            assert session_ids(server) == before
+            with server.client(TRAINER) as api:
+                assert api.get("/api/v1/machine").json()["session_id"] == running
+                assert api.post(f"/api/v1/sessions/{running}/stop").status_code == 202
+            assert wait_state(server, "idle", 30.0) == "idle"
+            wait_disabled(trainer, start, False)  # enabled again once the session has ended
+            # ...and a press now starts a session (the presses above were really ignored)
+            trainer.send(gui_update(start, value=True))
+            deadline = time.monotonic() + 20.0
+            while not session_ids(server) - before:
+                assert time.monotonic() < deadline, "the re-enabled Start started nothing"
+                time.sleep(0.2)
+            (pressed,) = session_ids(server) - before
+            wait_disabled(trainer, start, True)
+            deadline = time.monotonic() + 10.0  # (and said so: `said` reads what it says)
+            while f"started by {COACH}" not in said(trainer.messages):
+                assert time.monotonic() < deadline, said(trainer.messages)[-500:]
+                trainer.receive(0.2)
+        finally:
+            with server.client(TRAINER) as api:
+                active = api.get("/api/v1/machine").json()["session_id"]
+                if active is not None:
+                    api.post(f"/api/v1/sessions/{active}/stop")
+    with server.client(TRAINER) as api:
+        assert api.get(f"/api/v1/sessions/{pressed}").json()["session"]["account_id"] is not None
+    assert wait_state(server, "idle", 30.0) == "idle"
