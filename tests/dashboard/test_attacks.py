@@ -423,9 +423,9 @@ def test_a_browser_that_stops_reading_is_dropped_and_the_others_keep_receiving(
             ended, backlog = drained(slow, 15.0)
             slow.close()
             assert ended, f"the slow socket still streams ({backlog} bytes read)"
-            # the others never waited for it: frames all along, ~25 a second
+            # the others never waited for it: frames all along (~25 a second), no stall
             gaps = np.diff([began, *arrivals])
-            assert len(arrivals) >= 10 * stuck_for and gaps.max() < 1.0, (len(arrivals), gaps.max())
+            assert len(arrivals) >= 10 * stuck_for and gaps.max() < 2.0, (len(arrivals), gaps.max())
             assert rss1 - rss0 < 64, (rss0, rss1)  # bounded by the drop: no unbounded backlog
             good.receive(1.0)
             assert good.closed is None
