@@ -18,14 +18,18 @@ import contextlib
 import os
 import socket
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
+from websockets.client import ClientProtocol
 from websockets.exceptions import InvalidStatus
-from websockets.frames import Frame, Opcode
+from websockets.frames import Close, Frame, Opcode
+from websockets.protocol import State
+from websockets.uri import parse_uri
 
 from sessions.config import SeekerConfig
 from testing.browser import TRAINER, DemoServer
@@ -373,10 +377,12 @@ def stuck_reader(server: DemoServer, headers: dict[str, str]) -> socket.socket:
     return sock
 
 
-def drained(sock: socket.socket, timeout: float) -> tuple[bool, int]:
-    """Read the socket until the server's end (EOF or reset) or the timeout: (ended, bytes)."""
+def closed_by_server(sock: socket.socket, url: str, timeout: float) -> tuple[Close | None, int]:
+    """Read the socket (the server's frames, parsed by ``websockets``' own protocol) until the
+    server's close frame, its EOF or the timeout: (the close frame if any, bytes read)."""
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)  # (a wider window: quicker)
     sock.settimeout(1.0)
+    wire = ClientProtocol(parse_uri(url), state=State.OPEN, max_size=None)
     total, deadline = 0, time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
@@ -384,11 +390,15 @@ def drained(sock: socket.socket, timeout: float) -> tuple[bool, int]:
         except TimeoutError:
             continue
         except ConnectionResetError:
-            return True, total
+            break
         if not chunk:
-            return True, total
+            break
         total += len(chunk)
-    return False, total
+        wire.receive_data(chunk)
+        for frame in wire.events_received():
+            if frame.opcode is Opcode.CLOSE:
+                return Close.parse(frame.data), total
+    return None, total
 
 
 def rss_mb(pid: int) -> float:
@@ -419,17 +429,17 @@ def test_a_browser_that_stops_reading_is_dropped_and_the_others_keep_receiving(
                 assert isinstance(frame, bytes) and decode(frame)
             stuck_for, rss1 = time.monotonic() - began, rss_mb(server.pid)
             assert stuck_for >= SEND_TIMEOUT_S  # (it had a full 10 s to take a frame)
-            # dropped: what reaches the slow socket now ends (a stuck one would stream on)
-            ended, backlog = drained(slow, 15.0)
+            # dropped: what reaches the slow socket now is its backlog, then a close frame
+            # (a stuck socket would stream on)
+            close, backlog = closed_by_server(slow, server.ws_url + "/dashboard", 15.0)
             slow.close()
-            assert ended, f"the slow socket still streams ({backlog} bytes read)"
+            assert close is not None, f"no close frame after {backlog} bytes"
+            assert (close.code, close.reason) == (1008, "too slow"), close
             # the others never waited for it: frames all along (~25 a second), no stall
             gaps = np.diff([began, *arrivals])
             assert len(arrivals) >= 10 * stuck_for and gaps.max() < 2.0, (len(arrivals), gaps.max())
             assert rss1 - rss0 < 64, (rss0, rss1)  # bounded by the drop: no unbounded backlog
-            good.receive(1.0)
-            assert good.closed is None
-            assert good.receive(1.0)  # and still receiving after the drop
+            assert good.receive(1.0) and good.closed is None  # and still receiving after it
         finally:
             api.post(f"/api/v1/sessions/{sid}/stop")
     assert wait_state(server, "idle", 30.0) == "idle"
@@ -460,55 +470,59 @@ def said(messages: list[dict[str, Any]]) -> str:
     return " ".join(texts)
 
 
-def session_ids(server: DemoServer) -> set[int]:
-    with server.client(TRAINER) as api:
-        return {s["id"] for s in api.get("/api/v1/sessions", params={"limit": 100}).json()["items"]}
+def session_ids(api: httpx.Client) -> set[int]:
+    return {s["id"] for s in api.get("/api/v1/sessions", params={"limit": 100}).json()["items"]}
+
+
+def until(what: str, done: Callable[[], object], timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not done():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.1)
 
 
 def test_start_is_disabled_while_a_session_runs_and_a_press_starts_nothing(
     server: DemoServer,
 ) -> None:
-    assert wait_state(server, "idle") == "idle"
-    with dashboard(server, COACH) as trainer:
+    with server.client(TRAINER) as api, dashboard(server, COACH) as trainer:
+
+        def state() -> dict[str, Any]:
+            return dict(api.get("/api/v1/machine").json())
+
+        until("the machine is idle", lambda: state()["state"] == "idle")
         start = trainer.wait_for("Start", "GuiButtonMessage")
         trainer.send(gui_update(trainer.wait_for("User"), value=ADA))
         wait_disabled(trainer, start, False)
-        with server.client(TRAINER) as api:  # another trainer starts one over REST
-            r = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120})
-            assert r.status_code == 201, r.text
-            running = r.json()["id"]
+        r = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120})  # over REST
+        assert r.status_code == 201, r.text
+        running = r.json()["id"]
         try:
             wait_disabled(trainer, start, True)
-            before = session_ids(server)
+            before = session_ids(api)
             for _ in range(3):  # a press: what a browser would send for a click
                 trainer.send(gui_update(start, value=True))
             after_press = trainer.receive(1.5)
             # dropped in the view (a disabled element takes no value): the Start callback
             # never ran, so it never even said "starting…" or "Not started: …"
             assert "starting…" not in said(after_press) and "Not started" not in said(after_press)
-            assert session_ids(server) == before
-            with server.client(TRAINER) as api:
-                assert api.get("/api/v1/machine").json()["session_id"] == running
-                assert api.post(f"/api/v1/sessions/{running}/stop").status_code == 202
-            assert wait_state(server, "idle", 30.0) == "idle"
+            assert session_ids(api) == before and state()["session_id"] == running
+            assert api.post(f"/api/v1/sessions/{running}/stop").status_code == 202
+            until("the session ended", lambda: state()["state"] == "idle")
             wait_disabled(trainer, start, False)  # enabled again once the session has ended
             # ...and a press now starts a session (the presses above were really ignored)
             trainer.send(gui_update(start, value=True))
-            deadline = time.monotonic() + 20.0
-            while not session_ids(server) - before:
-                assert time.monotonic() < deadline, "the re-enabled Start started nothing"
-                time.sleep(0.2)
-            (pressed,) = session_ids(server) - before
+            until("the re-enabled Start started nothing", lambda: session_ids(api) - before)
+            (pressed,) = session_ids(api) - before
             wait_disabled(trainer, start, True)
             deadline = time.monotonic() + 10.0  # (and said so: `said` reads what it says)
             while f"started by {COACH}" not in said(trainer.messages):
                 assert time.monotonic() < deadline, said(trainer.messages)[-500:]
                 trainer.receive(0.2)
-        finally:
-            with server.client(TRAINER) as api:
-                active = api.get("/api/v1/machine").json()["session_id"]
-                if active is not None:
-                    api.post(f"/api/v1/sessions/{active}/stop")
-    with server.client(TRAINER) as api:
-        assert api.get(f"/api/v1/sessions/{pressed}").json()["session"]["account_id"] is not None
-    assert wait_state(server, "idle", 30.0) == "idle"
+        finally:  # (an e-stop and a reset: quicker than winding a session down to rest)
+            assert api.post("/api/v1/machine/estop").status_code == 202
+            until("e-stopped", lambda: state()["state"] == "estopped")
+            assert api.post("/api/v1/machine/reset").status_code == 202
+            until("reset", lambda: state()["state"] == "idle")
+    with server.client(COACH) as coach:  # the press was this dashboard's trainer's
+        me = coach.get("/api/v1/auth/me").json()["account"]["id"]
+        assert coach.get(f"/api/v1/sessions/{pressed}").json()["session"]["account_id"] == me
