@@ -345,6 +345,13 @@ def test_the_connection_caps_refuse_the_next_socket_until_one_closes(server: Dem
             client.close()
 
 
+def until(what: str, done: Callable[[], object], timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not done():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.1)
+
+
 SEND_TIMEOUT_S = 10.0  # "a browser that does not take a frame for 10 s is dropped"
 
 
@@ -414,7 +421,8 @@ def test_a_browser_that_stops_reading_is_dropped_and_the_others_keep_receiving(
     dropped = "dashboard socket of demo closed: the browser stopped reading"
     assert dropped not in server.log()
     with server.client(TRAINER) as api, dashboard(server, COACH) as good:
-        sid = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120}).json()["id"]
+        r = api.post("/api/v1/sessions", json={"user_id": 1, "duration": 120})  # a stream
+        assert r.status_code == 201, r.text
         try:
             slow = stuck_reader(server, login_headers(server, TRAINER))
             rss0, began = rss_mb(server.pid), time.monotonic()
@@ -440,9 +448,11 @@ def test_a_browser_that_stops_reading_is_dropped_and_the_others_keep_receiving(
             assert len(arrivals) >= 10 * stuck_for and gaps.max() < 2.0, (len(arrivals), gaps.max())
             assert rss1 - rss0 < 64, (rss0, rss1)  # bounded by the drop: no unbounded backlog
             assert good.receive(1.0) and good.closed is None  # and still receiving after it
-        finally:
-            api.post(f"/api/v1/sessions/{sid}/stop")
-    assert wait_state(server, "idle", 30.0) == "idle"
+        finally:  # (an e-stop and a reset: quicker than winding the session down to rest)
+            assert api.post("/api/v1/machine/estop").status_code == 202
+            until("e-stopped", lambda: api.get("/api/v1/machine").json()["state"] == "estopped")
+            assert api.post("/api/v1/machine/reset").status_code == 202
+            until("reset", lambda: api.get("/api/v1/machine").json()["state"] == "idle")
 
 
 def disabled(client: RawClient, uuid: str) -> bool:
@@ -472,13 +482,6 @@ def said(messages: list[dict[str, Any]]) -> str:
 
 def session_ids(api: httpx.Client) -> set[int]:
     return {s["id"] for s in api.get("/api/v1/sessions", params={"limit": 100}).json()["items"]}
-
-
-def until(what: str, done: Callable[[], object], timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not done():
-        assert time.monotonic() < deadline, what
-        time.sleep(0.1)
 
 
 def test_start_is_disabled_while_a_session_runs_and_a_press_starts_nothing(
