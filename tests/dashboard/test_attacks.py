@@ -8,7 +8,11 @@ viser's wire format (:mod:`testing.viser_wire`) against ``ergoseek demo`` in its
 - one trainer's session form is theirs: another trainer's values never reach it, even sent
   to its element ids; a viewer's History selection is theirs;
 - a demoted or disabled account loses the trainers' dashboard at once;
-- users added over REST appear in the open dashboards without a restart.
+- users added over REST appear in the open dashboards without a restart;
+- the caps of docs/dashboard.md: past 8 sockets of one account or 32 in all the handshake is
+  refused (403) until one closes; a socket that stops reading is dropped after 10 s (the
+  server's close frame, 1008) while the others keep receiving; Start is disabled while a
+  session runs, and a press then never reaches its callback.
 """
 
 from __future__ import annotations
