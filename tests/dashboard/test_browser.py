@@ -231,20 +231,45 @@ def test_the_socket_needs_the_login_and_our_origin(server: DemoServer, trainer: 
         assert "<title>Viser</title>" in r.text
 
 
-def test_the_page_talks_to_this_server_only(server: DemoServer, trainer: Afternoon) -> None:
-    # viser's ?websocket= override is blocked (CSP)
+def test_the_page_talks_to_this_server_only(server: DemoServer, browser: Any) -> None:
+    # viser's ?websocket= override: the page tries the foreign server and the CSP refuses it.
+    # (viser's client connects from a Web Worker, whose violations never reach the page's
+    # `securitypolicyviolation` listeners: Chromium's own log, over CDP, says it instead.)
+    context = browser.new_context(viewport=VIEWPORT)
+    login = {"login": TRAINER, "password": server.password}  # (the cookie, as the login page)
+    r = context.request.post(f"{server.url}/api/v1/auth/login", data=login,
+                             headers={"Origin": server.url})  # fmt: skip
+    assert r.ok, r.text()
     with contextlib.redirect_stdout(io.StringIO()):
         foreign = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         foreign.gui.add_markdown("A FOREIGN DASHBOARD")
-        lure = trainer.context.new_page()
-        lure.goto(f"{server.url}/dashboard/?websocket=ws://127.0.0.1:{foreign.get_port()}")
-        time.sleep(3.0)
+        target = f"ws://127.0.0.1:{foreign.get_port()}"
+        lure = context.new_page()
+        log: list[dict[str, Any]] = []  # Chromium's log of the page and its workers
+        cdp = context.new_cdp_session(lure)
+        cdp.on("Log.entryAdded", lambda event: log.append(event["entry"]))
+        cdp.send("Log.enable")
+        sockets: list[str] = []  # every WebSocket the page opened (Playwright's record)
+        lure.on("websocket", lambda ws: sockets.append(ws.url))
+        lure.goto(f"{server.url}/dashboard/?websocket={target}")
+        blocked = re.compile(
+            rf"Connecting to '{re.escape(target)}/' violates the following Content Security "
+            r"Policy directive: \"connect-src [^\"]*\"\. The action has been blocked\."
+        )
+        deadline = time.monotonic() + UI_TIMEOUT / 1e3
+        while not any(blocked.search(e["text"]) for e in log):
+            assert time.monotonic() < deadline, [e["text"] for e in log]
+            assert not [e for e in log if e["text"].startswith(f"Connected! {target}")]
+            lure.wait_for_timeout(100)  # (Playwright delivers the page's events meanwhile)
+        # the client did try the foreign server, and that attempt is what the CSP blocked
+        assert any(e["text"].startswith(f"Connecting to: {target}") for e in log)
+        assert not [u for u in sockets if u.startswith(target)], sockets  # none ever opened
         assert lure.get_by_text("A FOREIGN DASHBOARD").count() == 0
         assert not foreign.get_clients()
-        lure.close()
     finally:
         foreign.stop()
+        context.close()
 
 
 def test_a_viewer_gets_the_dashboard_without_controls(server: DemoServer, browser: Any) -> None:
