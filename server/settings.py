@@ -39,6 +39,9 @@ from sessions.worker.options import LIVE_RATE_MAX, WorkerOptions
 MachineKind = Literal["sim", "odrive", "odrive-emulator"]
 SERVER_MAX_TORQUE = 200.0  # N·m: the most any machine this server drives may be set to
 SERVER_MAX_VELOCITY = 100.0  # rad/s
+# c² of (5): the engine's default is the most energy a server lets its machine put into a
+# person before it stops; an operator may only lower it (stricter)
+SERVER_MAX_PASSIVITY_C2 = MachineConfig.model_fields["passivity_c2"].default
 
 
 def owned(model: type[BaseModel], name: str, **caps: float) -> Any:
@@ -89,6 +92,7 @@ class Settings(BaseSettings):
     max_torque: float = owned(MachineConfig, "max_torque", le=SERVER_MAX_TORQUE)
     max_velocity: float = owned(MachineConfig, "max_velocity", le=SERVER_MAX_VELOCITY)
     inertia: float = owned(MachineConfig, "inertia")
+    passivity_c2: float = owned(MachineConfig, "passivity_c2", le=SERVER_MAX_PASSIVITY_C2)
     gear_ratio: float = owned(MachineSpec, "gear_ratio")
     direction: Direction = owned(MachineSpec, "direction")
     reply_timeout: float = owned(MachineSpec, "reply_timeout")
@@ -166,8 +170,9 @@ class Settings(BaseSettings):
     def machine_config(self) -> MachineConfig:
         """The machine every session gets (a request may lower its limits)."""
         return MachineConfig(
-            inertia=self.inertia, max_torque=self.max_torque, max_velocity=self.max_velocity
-        )
+            inertia=self.inertia, max_torque=self.max_torque, max_velocity=self.max_velocity,
+            passivity_c2=self.passivity_c2,
+        )  # fmt: skip
 
     def machine_spec(self, device: str | None = None) -> MachineSpec:
         """What the worker drives: the simulator, or an ODrive at ``device`` (default: the

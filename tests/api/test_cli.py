@@ -131,3 +131,14 @@ def test_demo_prints_its_password_seeds_users_and_serves(tmp_path: Path) -> None
     finally:
         proc.terminate()
         proc.wait(20)
+
+
+def test_the_passivity_bound_may_be_lowered_not_raised() -> None:
+    from pydantic import ValidationError
+
+    from server.settings import Settings
+
+    assert Settings(passivity_c2=1e-3).machine_config().passivity_c2 == 1e-3
+    assert Settings().machine_config().passivity_c2 == 50.0  # the engine's c²
+    with pytest.raises(ValidationError, match="passivity_c2"):
+        Settings(passivity_c2=50.5)

@@ -11,10 +11,10 @@
 - neither stores a setpoint: the user's stored optimum (set by hand first) is unchanged, though
   the faulted session had converged on an optimum it would otherwise have stored.
 
-(A passivity breach cannot be provoked through the server: its c² is the machine's 50 J, the
-simulated people never pull, and the request checks refuse a reference the motor cannot
-follow; so the estimated W(t) stays above −c². tests/worker/test_safety.py breaches it with a
-1 mJ bound at the worker.)
+- a server whose operator set c² of (5) to 1 mJ (``ERGOSEEK_PASSIVITY_C2``): next to no person
+  on the handle and a hard acceleration, the observer's τ̂ runs behind and W(t) dips below −c²:
+  ``aborted`` at the breach, the same step as the offline run of the same configuration. (At
+  the default 50 J no simulated person breaches it: they never pull.)
 
 Truth: the stored telemetry read back from the store's file, the person's closed-form optimum.
 """
@@ -33,6 +33,15 @@ import pytest
 from sessions.store import open_store
 from testing.server import ServerProcess, start_server
 
+C2 = 1e-3  # J: the strict server's passivity bound
+# next to no person on the handle, a hard acceleration to 5 rad/s (tests/worker/test_safety.py)
+PASSIVE_PERSON = {"kind": "linear", "tau0": 0.01, "wmax": 0.5}
+PASSIVE = {
+    "duration": 3.0,
+    "controller": {"kind": "rise", "ks": 0.2},
+    "seeker": {"kind": "fixed", "setpoint": 5.0, "bracket": [1, 2, 6], "start_delay": 0.0,
+               "filter": {"pole": 30.0}},
+}  # fmt: skip
 AT = 5.0  # s of session time the velocity sensor starts reading NaN
 ENDED = {"completed", "stopped", "aborted", "faulted"}
 MANUAL = 2.5  # rad/s: the user's stored optimum, set by hand before the sessions
@@ -56,6 +65,14 @@ OVERSPEED = {
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     env = {"ERGOSEEK_SIM_FAULT__KIND": "nan-velocity", "ERGOSEEK_SIM_FAULT__AT": str(AT)}
     with start_server(tmp_path_factory.mktemp("ends"), env=env) as srv:
+        yield srv
+
+
+@pytest.fixture(scope="module")
+def strict(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """A server whose operator lowered c² of (5) to 1 mJ."""
+    env = {"ERGOSEEK_PASSIVITY_C2": str(C2)}
+    with start_server(tmp_path_factory.mktemp("strict"), env=env) as srv:
         yield srv
 
 
@@ -144,3 +161,35 @@ def test_a_machine_fault_ends_the_session_faulted_and_stores_no_setpoint(
     assert np.count_nonzero(u[-200:-1]) > 150  # it was pushing until then
     assert u[-1] == 0.0  # the fault's zero-torque record, last
     assert np.isfinite(d["w"][:-1]).all()  # the NaN was never stored as a velocity
+
+
+def test_a_passivity_breach_ends_the_session_aborted_where_the_offline_run_breaches(
+    strict: ServerProcess,
+) -> None:
+    with strict.client("trainer") as c:
+        uid = user_with_optimum(c, "Barely there", PASSIVE_PERSON)
+        before = optimum_of(c, uid)
+        r = c.post("/api/v1/sessions", json={"user_id": uid, "seed": 3, **PASSIVE})
+        assert r.status_code == 201, r.text
+        sid = r.json()["id"]
+        body = strict.wait_status(sid, ENDED, 20.0)
+        session = body["session"]
+        assert session["status"] == "aborted", session
+        assert session["abort_reason"].startswith("passivity breached: W = ")
+        assert session["abort_reason"].endswith(f"< -c² = {-C2:g} J")
+        limits = [e for e in body["events"] if e["kind"] == "limit"]
+        assert limits and limits[0]["detail"]["limit"] == "passivity", body["events"]
+        assert optimum_of(c, uid) == before  # no setpoint from an aborted session
+        config = c.get(f"/api/v1/sessions/{sid}").json()["session"]["config"]
+    # the same configuration offline: W(t) crosses -c² on the step the live session stopped
+    from sessions.config import SessionConfig
+    from sessions.simulation import run_simulation
+
+    ref = run_simulation(SessionConfig.model_validate(config))
+    breach = int(np.argmax(ref.column("W") < -C2))
+    assert breach > 0
+    d = stored(strict, sid)
+    stop = np.isnan(d["wd"])
+    assert stop.any() and not stop[: breach + 1].any() and stop[breach + 1 :].all()
+    assert np.all(d["u"][stop] * d["w"][stop] <= 0.0)  # the stop brakes, never drives
+    assert d["u"][-1] == 0.0
