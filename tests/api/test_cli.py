@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 from sessions.store import open_store
 from testing.cli import ROOT, ergoseek
