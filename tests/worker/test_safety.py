@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from sessions.codes import FLAG_ESTOP
+from sessions.codes import FLAG_ESTOP, TORQUE_LIMIT
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerError, WorkerOptions
@@ -106,6 +106,31 @@ def test_velocity_over_the_limit_is_a_controlled_stop():
     assert len(stop) <= (0.5 + 2.0) * 1000 + 1  # ramp, then at most the grace period
 
 
+def test_a_person_stronger_than_the_motor_is_a_torque_limit_event_from_the_first_period():
+    # controller A from rest: u = J·ad + J·k·e − τ, here −30 N·m against a 20 N·m motor on the
+    # very first period; the limit event says so once, at that period's time
+    cfg = scenario(
+        duration=0.5,
+        machine={"max_torque": 20.0},
+        user={"tau0": 30.0, "wmax": 12.0},
+        controller={"kind": "measured"},
+        seeker={"kind": "fixed", "setpoint": 1.0, "bracket": [0.5, 1, 2], "start_delay": 0.0},
+    )
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(cfg, "strong")
+        got = follow(worker, reader, timeout=20)
+        reader.close()
+    d = got.data[got.data[:, INDEX["phase"]] >= 0]
+    clamped = (d[:, INDEX["flags"]].astype(int) & TORQUE_LIMIT) != 0
+    assert clamped[0] and abs(d[0, INDEX["u_out"]]) == 20.0  # clamped from the first period
+    torque = [e for e in got.of("limit") if e.limit == "torque"]
+    assert len(torque) == 1 + int(np.count_nonzero(np.diff(clamped.astype(int)) == 1))
+    assert torque[0].session_t == d[0, INDEX["t"]] and torque[0].value == 20.0
+    assert torque[0].session_id == "strong"
+
+
 def test_passivity_breach_stops_the_session_at_the_first_breach():
     # next to no person on the handle and a hard acceleration to 5 rad/s: during the transient
     # the observer's τ̂ (28) runs behind, and W(t) from τ̂·w dips below -c² = -1 mJ
@@ -136,6 +161,9 @@ def test_passivity_breach_stops_the_session_at_the_first_breach():
     assert end.reason.startswith("passivity breached")
     assert end.summary.passivity_min < -1e-3
     assert "passivity" in [e.limit for e in got.of("limit")]
+    assert {e.session_id for e in got.of("limit")} | {e.session_id for e in got.of("stopping")} == {
+        "passive"
+    }  # the events name their session
     run = got.data[got.data[:, INDEX["phase"]] >= 0]
     assert len(run) == breach + 1  # stopped on the very step W crossed -c²
     assert run[-1, INDEX["W"]] == ref.column("W")[breach]

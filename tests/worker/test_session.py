@@ -109,8 +109,11 @@ def test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drive
         ("stop", "relax"),
     ]
     assert stages[1].stage.start == pytest.approx(cfg.duration + 1 / cfg.rate)  # period n + 1
-    assert got.end is not None
+    assert got.end is not None and got.end.status == "completed"
     assert got.end.summary.duration == pytest.approx(t[-1] - len(stop) / 1e3, abs=2e-3)
+    assert got.end.summary.abort_reason is None  # a completed session has no abort reason
+    # every event of the session names it (the server files them under its session)
+    assert {e.session_id for e in got.events if hasattr(e, "session_id")} == {"ramp"}
 
 
 def test_operator_stop_ends_the_session_early(worker):
