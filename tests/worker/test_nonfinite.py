@@ -82,4 +82,6 @@ def test_an_overflow_inside_the_loop_aborts_the_session_with_zero_torque():
     assert len(d) <= int(AT * 1000) + 2  # it ended on the period the overflow appeared
     for field in ("mean_power", "peak_power", "work", "duration", "passivity_min"):
         assert math.isfinite(getattr(end.summary, field)), field
+    assert end.summary.abort_reason == end.reason  # the summary says why it ended
+    assert not end.summary.converged
     assert nxt is not None and nxt.status == "completed"

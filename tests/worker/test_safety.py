@@ -43,8 +43,10 @@ def test_estop_zeroes_torque_within_two_periods_and_latches():
         # cycles that started after the e-stop was sent and still wrote torque: at most 2
         assert np.count_nonzero(u[after]) <= 2
         assert int(d[-1, INDEX["flags"]]) & FLAG_ESTOP and u[-1] == 0.0
-        zero_at = got.of("estop")[0].zero_at
+        estop = got.of("estop")[0]
+        zero_at = estop.zero_at
         assert zero_at >= sent
+        assert estop.session_id == "estop" and sent <= estop.t == zero_at  # whose, and when
         assert len(d[(mono > sent) & (mono < zero_at)]) <= 2  # cycles between: at most 2
         end = got.end
         assert end is not None and end.status == "stopped" and end.reason == "e-stop"
