@@ -439,3 +439,71 @@ def fit(
         w_lo=float(w.min()),
         w_hi=float(w.max()),
     )
+
+
+SMOOTH_WIDTH = 0.08  # the smoother's kernel: a Gaussian of this std in ln w
+SMOOTH_GRID = 60  # points at which the smoothed curve is evaluated
+SMOOTH_SIDE = 5.0  # kernel mass (rows) needed on each side of a grid point: no extrapolation
+MIN_SMOOTH_ROWS = 12
+
+
+def smooth_top(rows: np.ndarray) -> tuple[float, float, float, float] | None:
+    """Where the power peaks along the rows without a model of the whole curve: a local
+    quadratic in u = ln w, Gaussian kernel of SMOOTH_WIDTH, evaluated on a grid over the rows'
+    range (only where rows lie on both sides). Returns (w at the maximum, the power there,
+    and the lowest and highest w of the run of grid points within 1 % of it), or None when
+    the smoothed power is highest where the rows end (no top inside them).
+
+    A parabola through ±30 % of a sharp or skewed top misfits, and one through the few rows
+    a fast leg leaves near the top is anchored wherever its centre was put; the local fit
+    needs neither. A Gaussian kernel of width h on a top of log-width s widens it to
+    √(s² + h²): on the sharpest tops a person has (s ≈ 0.3) that is 3 %. Rows: the ripple
+    divided out."""
+    if len(rows) < 4 * MIN_SMOOTH_ROWS:
+        return None
+    u = np.log(np.maximum(rows[:, W], 1e-9))
+    lo, hi = float(u.min()), float(u.max())
+    if hi - lo < 2.0 * SMOOTH_WIDTH:
+        return None
+    grid = np.linspace(lo, hi, SMOOTH_GRID)
+    level = _smoothed(u, rows[:, P], grid)
+    valid = np.flatnonzero(np.isfinite(level))
+    if len(valid) < 3:
+        return None
+    j = int(valid[np.argmax(level[valid])])
+    if j in (valid[0], valid[-1]) or not np.isfinite(level[[j - 1, j + 1]]).all():
+        return None  # highest where the rows end: no top seen inside them
+    top = float(level[j])
+    within = level >= (0.99 * top if top > 0.0 else top)  # (-inf where not evaluated)
+    lo_j, hi_j = j, j  # the band: the run of grid points within 1 % of the top
+    while lo_j > 0 and within[lo_j - 1]:
+        lo_j -= 1
+    while hi_j < len(grid) - 1 and within[hi_j + 1]:
+        hi_j += 1
+    # between grid points: the vertex of the parabola through the three around the top
+    y0, y2 = float(level[j - 1]), float(level[j + 1])
+    den = y0 - 2.0 * top + y2
+    shift = min(max(0.5 * (y0 - y2) / den, -0.5), 0.5) if den < 0.0 else 0.0
+    step = float(grid[1] - grid[0])
+    return (
+        math.exp(float(grid[j]) + shift * step),
+        top,
+        math.exp(float(grid[lo_j])),
+        math.exp(float(grid[hi_j])),
+    )
+
+
+def _smoothed(u: np.ndarray, p: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """The local quadratic's level at each grid point (-inf where rows do not lie on both
+    sides, or the fit is singular): weighted moments, one 3 × 3 solve per point."""
+    x = (u[None, :] - grid[:, None]) / SMOOTH_WIDTH  # grid × rows
+    k = np.exp(-0.5 * x * x)
+    ok = ((k * (x < 0.0)).sum(axis=1) >= SMOOTH_SIDE) & ((k * (x > 0.0)).sum(axis=1) >= SMOOTH_SIDE)
+    m = [(k * x**j).sum(axis=1) for j in range(5)]
+    r = np.stack([(k * x**j * p[None, :]).sum(axis=1) for j in range(3)], -1)
+    a = np.stack([np.stack(m[i : i + 3], -1) for i in range(3)], -2)  # Σk xⁱ⁺ʲ
+    ok &= np.abs(np.linalg.det(a)) > 1e-9 * np.maximum(m[0], 1.0) ** 3
+    level = np.full(len(grid), -np.inf)
+    if ok.any():
+        level[ok] = np.linalg.solve(a[ok], r[ok][..., None])[:, 0, 0]
+    return level

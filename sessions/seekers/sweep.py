@@ -26,6 +26,13 @@ multiplicative) regressed out, so the candidate can move all the time.
    ½|p''|(2σv)² ≤ ``power_tol``·p (the optimum known to within that fraction of the power at
    two standard errors), or after MAX_REFINE passes on the best estimate. A top fitted to
    fewer than TOP_ROWS rows (a locate leg crossing it fast) needs one refine pass first.
+   Before the top fit shows a significant maximum, the first pass is centred where a local
+   smoother of the locate legs' rows peaks and spans their 99 % band
+   (:func:`~.regression.smooth_top`: no parabola through ±30 % of a sharp or skewed top,
+   and no centre put where a fast leg's few rows happened to be), not ±UNKNOWN_BAND around
+   the coarse best point. The candidate never goes past the pass's far end (the filter's
+   lag would carry wd on beyond it), and the far end is pulled in to the band the top fit
+   shows once it shows one, so the pass ends inside the person's 99 % band.
 4. **Track.** The candidate goes to the vertex and a :class:`~sessions.seekers.tracker.Tracker`
    follows it (``track``, the default) with the curvature and noise the sweep measured.
 
@@ -43,7 +50,17 @@ import numpy as np
 from sessions.config import SeekerConfig
 from sessions.filters import TrajectoryFilter
 from sessions.seekers.base import DELAY, DONE, MEASURING, SETTLING, Evaluation, Seeker
-from sessions.seekers.regression import Fit, P, Rows, T, W, fit, fit_ripple, without_ripple
+from sessions.seekers.regression import (
+    Fit,
+    P,
+    Rows,
+    T,
+    W,
+    fit,
+    fit_ripple,
+    smooth_top,
+    without_ripple,
+)
 from sessions.seekers.tracker import Tracker
 
 REFIT = 0.2  # s between decisions
@@ -161,7 +178,8 @@ class SweepSeeker(Seeker):
                 lo, hi = self.span
                 inside = lo <= self.wd <= hi
                 if inside or (self.wd - hi) * self.direction < 0.0:
-                    target = min(max(target, lo), hi) if inside else target
+                    # never past the span's far end: the filter's lag would carry wd on
+                    target = min(max(target, lo), hi)
             self.target = self.clamp(target)
 
     # -- decisions, every REFIT seconds ----------------------------------------------------
@@ -337,6 +355,13 @@ class SweepSeeker(Seeker):
                 band = math.sqrt(2.0 * 0.01 * max(f.value(v), 1e-12) / c2)
                 # 80 % of it: the curvature a parabola fits to a skewed top is a little low
                 return self.clamp(v), se, min(max(0.8 * band, 0.03 * v), TOP * v)
+        smooth = None
+        if self.passes == 0:  # the locate legs' rows: where they peak, and their 99 % band
+            smooth = smooth_top(without_ripple(self.rows.view(self.gate_t), self.ripple))
+        if smooth is not None:
+            w, _, lo, hi = smooth
+            v = self.clamp(w)
+            return v, math.inf, min(max(0.5 * (hi - lo), 0.03 * v), UNKNOWN_BAND * v)
         v = self.clamp(self.best_w if math.isfinite(self.best_w) else self.wd)
         if f is not None and f.coef[2] < 0.0:  # a maximum, not yet significant: still the best
             u, _ = f.vertex()
@@ -384,16 +409,33 @@ class SweepSeeker(Seeker):
         self.target = self.clamp(self.wd + self.direction * 1e-3)
 
     def _refine_step(self, t: float) -> None:
+        self._shorten_pass()
         lo, hi = self.span
         inside = lo <= self.wd <= hi
         # slow enough that the filter's lag (lead·rate·w) stays within half the span
         fits = 0.5 * (hi - lo) / 2.0 / (self.lead * max(self.wd, self.lo))
         self.rate = min(self.cfg.sweep_rate, fits) if inside else self.cfg.sweep_rate * FAST
-        near = 0.1 * (hi - lo)
+        # the target stops at the span's end and wd approaches it from inside: a tolerance
+        near = max(0.1 * (hi - lo), 0.005 * hi)
         done = self.wd >= hi - near if self.direction > 0 else self.wd <= lo + near
         at_bound = self.target >= self.hi if self.direction > 0 else self.target <= self.lo
         if done or at_bound:
             self._next_pass(t)
+
+    def _shorten_pass(self) -> None:
+        """The pass's far end pulled in to the band the rows now show: a pass begun at the
+        unknown-curvature width (±UNKNOWN_BAND) would otherwise carry wd beyond a sharp
+        top's 99 % band once the top is known, and back."""
+        v, se, half = self._estimate()
+        if not math.isfinite(se):
+            return
+        lo, hi = self.span
+        if self.direction > 0:
+            self.span = (lo, max(min(hi, v + half + se), lo))
+            self.target = min(self.target, max(self.span[1], self.wd))
+        else:
+            self.span = (min(max(lo, v - half - se), hi), hi)
+            self.target = max(self.target, min(self.span[0], self.wd))
 
     def _edge_verdict(self) -> str | None:
         """A bound the power still rises through, by K_EDGE standard errors of the slope of

@@ -11,7 +11,7 @@ import pytest
 from sessions.seekers.averaging import PowerAverager, summarise
 from sessions.seekers.base import Evaluation
 from sessions.seekers.fit import final_estimate, quadratic_peak, top_curvature
-from sessions.seekers.regression import Rows, fit
+from sessions.seekers.regression import Rows, fit, smooth_top
 
 
 def ar1(n: int, std: float, rho: float, seed: int) -> np.ndarray:
@@ -167,3 +167,43 @@ def test_the_abscissa_ignores_the_persons_own_fluctuation() -> None:
     g = fit(raw, 3.0, 0.3, ripple=False)
     raw_slope, raw_se = g.slope(3.0)
     assert raw_slope > 5 * raw_se and raw_slope > 0.5  # the bias the rows avoid
+
+
+def skewed_top(w: np.ndarray, w_star: float, s_lo: float, s_hi: float) -> np.ndarray:
+    """p = 10·exp(−x²/(2s²)) on x = ln(w/w*), s = s_lo below w*, s_hi above: the skewed tops
+    of the benchmark's population; its 99 % band is w*·exp(±s·√0.02)."""
+    x = np.log(w / w_star)
+    s = np.where(x < 0.0, s_lo, s_hi)
+    return 10.0 * np.exp(-((x / s) ** 2) / 2.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_smoother_finds_a_skewed_top_a_parabola_misses(seed: int) -> None:
+    # One leg from 5 down to 1.5 rad/s in 6 s across a skewed top at 3 (99 % band
+    # 2.88-3.31), 2 % correlated noise: the smoothed top lies in the band and so does its
+    # band's centre, where a parabola through ±30 % of the top puts the vertex ~20 % off.
+    n, dt = 6000, 1e-3
+    t = np.arange(n) * dt
+    w = 5.0 - 3.5 * t / t[-1]
+    q = np.cumsum(w) * dt
+    p = skewed_top(w, 3.0, 0.3, 0.7) * (1.0 + ar1(n, 0.02, math.exp(-dt / 0.03), seed))
+    rows = rows_of(w, p, q)
+    found = smooth_top(rows)
+    assert found is not None
+    v, top, lo, hi = found
+    band = (3.0 * math.exp(-0.3 * math.sqrt(0.02)), 3.0 * math.exp(0.7 * math.sqrt(0.02)))
+    assert band[0] <= v <= band[1]
+    assert top == pytest.approx(10.0, rel=0.02)
+    assert lo < v < hi and band[0] <= 0.5 * (lo + hi) <= band[1]
+    assert 0.3 < (hi - lo) / (band[1] - band[0]) < 1.5  # the band's width, roughly
+    parabola = fit(rows, 3.0, 0.9, ripple=False)
+    assert parabola is not None and abs(parabola.vertex()[0] - 3.0) > 0.1 * 3.0
+
+
+def test_the_smoother_sees_no_top_where_the_power_still_rises_at_the_rows_end() -> None:
+    # rows that climb to their last velocity (the optimum beyond the bracket): no top
+    n, dt = 6000, 1e-3
+    w = np.linspace(1.0, 2.5, n)
+    q = np.cumsum(w) * dt
+    assert smooth_top(rows_of(w, skewed_top(w, 3.0, 0.3, 0.7), q)) is None
+    assert smooth_top(rows_of(w[::-1], skewed_top(w[::-1], 0.8, 0.3, 0.7), q)) is None
