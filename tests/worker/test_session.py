@@ -128,6 +128,27 @@ def test_operator_stop_ends_the_session_early(worker):
     assert end.summary.abort_reason == "stopped by the operator"
 
 
+def test_a_stop_during_the_wind_down_or_an_immediate_one_zeroes_the_torque_at_once(worker):
+    # a first stop winds the handle down to rest; a second one while it does ends the session
+    # at once, zero torque, as does a stop asked immediate from the start
+    for name, stops in (("twice", [(False, None), (False, None)]), ("now", [(True, "drill")])):
+        reader = worker.open_reader()
+        worker.start_session(scenario(duration=30.0), name)
+        follow(worker, until="timing")
+        for i, (immediate, reason) in enumerate(stops):
+            if i:
+                follow(worker, until="stopping")
+            worker.stop(immediate=immediate, reason=reason)
+        got = follow(worker, reader, timeout=10)
+        reader.close()
+        end = got.end
+        assert end is not None and end.status == "stopped"
+        assert end.reason == ("drill" if name == "now" else "stopped at once by the operator")
+        assert got.data[-1, INDEX["u_out"]] == 0.0
+        assert not (got.data[:-1, INDEX["phase"]] < 0).any()  # no torque ramp: zero at once
+        assert worker.state == "idle"
+
+
 def test_bad_requests_are_refused_where_they_are_made(worker):
     with pytest.raises(ScenarioError, match="duration"):
         worker.start_session({"duration": -1}, "bad")
