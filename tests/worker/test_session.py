@@ -13,7 +13,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from sessions.codes import FLAG_STOPPING
+from sessions.codes import FLAG_STOPPING, TORQUE_LIMIT
 from sessions.config import ScenarioError
 from sessions.loop import Loop
 from sessions.machine import MachineSpec
@@ -145,8 +145,22 @@ def test_a_stop_during_the_wind_down_or_an_immediate_one_zeroes_the_torque_at_on
         assert end is not None and end.status == "stopped"
         assert end.reason == ("drill" if name == "now" else "stopped at once by the operator")
         assert got.data[-1, INDEX["u_out"]] == 0.0
+        assert int(got.data[-1, INDEX["flags"]]) & TORQUE_LIMIT == 0  # no limit claimed there
         assert not (got.data[:-1, INDEX["phase"]] < 0).any()  # no torque ramp: zero at once
         assert worker.state == "idle"
+
+
+def test_a_shutdown_mid_session_stops_it_at_once_and_the_worker_exits_by_itself():
+    w = Worker(options=WorkerOptions())
+    w.start()
+    w.start_session(scenario(duration=30.0), "last")
+    follow(w, until="timing")
+    proc = w._proc
+    events = w.shutdown(timeout=5.0)
+    ended = [e for e in events if e.kind == "session_ended"]
+    assert [(e.status, e.reason) for e in ended] == [("stopped", "worker shut down")]
+    assert [e.reason for e in events if e.kind == "exited"] == ["shutdown"]
+    assert proc.exitcode == 0  # it ended itself, not terminated after the timeout
 
 
 def test_bad_requests_are_refused_where_they_are_made(worker):
