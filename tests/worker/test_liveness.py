@@ -17,7 +17,8 @@ from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, scenario, wait_for
 
-pytestmark = pytest.mark.realtime  # timed where it happens: alone, after the parallel rooms
+# the dead and hung worker's detection is timed where it happens: those two run alone, after
+# the parallel rooms (marker realtime); SIGTERM and shutdown are not timed
 
 
 def _start(duration: float = 30.0) -> tuple[Worker, object]:
@@ -29,6 +30,7 @@ def _start(duration: float = 30.0) -> tuple[Worker, object]:
     return worker, reader
 
 
+@pytest.mark.realtime
 def test_dead_worker_means_an_aborted_session():
     worker, reader = _start()
     try:
@@ -65,6 +67,7 @@ def test_dead_worker_means_an_aborted_session():
         worker.shutdown()
 
 
+@pytest.mark.realtime
 def test_hung_worker_is_declared_lost_and_killed():
     worker, reader = _start()
     try:
@@ -129,11 +132,14 @@ def test_shutdown_ends_a_running_session_and_removes_the_ring():
     worker, reader = _start()
     name = worker.ring_info.name
     reader.close()  # type: ignore[attr-defined]
-    events = worker.shutdown()
+    proc = worker._proc
+    events = worker.shutdown(timeout=5.0)
     kinds = [e.kind for e in events]
     assert "session_ended" in kinds and kinds[-1] == "exited"
     end = next(e for e in events if e.kind == "session_ended")
     assert end.status == "stopped" and end.reason == "worker shut down"
+    assert events[-1].reason == "shutdown"
+    assert proc.exitcode == 0  # it ended itself, not terminated after the timeout
     assert worker.state == "closed"
     assert not os.path.exists(f"/dev/shm/{name}")
     assert worker.shutdown() == []  # idempotent

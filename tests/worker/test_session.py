@@ -150,19 +150,6 @@ def test_a_stop_during_the_wind_down_or_an_immediate_one_zeroes_the_torque_at_on
         assert worker.state == "idle"
 
 
-def test_a_shutdown_mid_session_stops_it_at_once_and_the_worker_exits_by_itself():
-    w = Worker(options=WorkerOptions())
-    w.start()
-    w.start_session(scenario(duration=30.0), "last")
-    follow(w, until="timing")
-    proc = w._proc
-    events = w.shutdown(timeout=5.0)
-    ended = [e for e in events if e.kind == "session_ended"]
-    assert [(e.status, e.reason) for e in ended] == [("stopped", "worker shut down")]
-    assert [e.reason for e in events if e.kind == "exited"] == ["shutdown"]
-    assert proc.exitcode == 0  # it ended itself, not terminated after the timeout
-
-
 def test_bad_requests_are_refused_where_they_are_made(worker):
     with pytest.raises(ScenarioError, match="duration"):
         worker.start_session({"duration": -1}, "bad")
