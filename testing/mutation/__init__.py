@@ -40,6 +40,7 @@ MODULES: tuple[Target, ...] = (
             "tests/worker/test_session.py::test_a_stop_during_the_wind_down_or_an_immediate_one_zeroes_the_torque_at_once",
             "tests/worker/test_liveness.py::test_sigterm_zeroes_and_exits_cleanly",
             "tests/worker/test_liveness.py::test_shutdown_ends_a_running_session_and_removes_the_ring",
+            "tests/worker/test_nonfinite.py",
         ),
     ),
     # the machine backends' fault handling: the lifecycle and its latched FAULT, the

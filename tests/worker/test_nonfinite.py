@@ -54,6 +54,9 @@ def test_a_nan_measurement_is_a_latched_fault_with_zero_torque(kind, controller,
     end = got.end
     assert end is not None and end.status == "faulted"
     assert end.reason == f"non-finite measured {what}", end.reason
+    faults = got.of("fault")  # the fault event: whose session, why, when
+    assert [(f.session_id, f.reason) for f in faults] == [(kind, end.reason)]
+    assert faults[0].t <= end.t
     assert after == "faulted" and end.state_after == "faulted"
     d = got.data
     assert len(d) == int(AT * 1000) + 1  # every period before the fault, then the zero record
