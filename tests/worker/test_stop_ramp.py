@@ -58,8 +58,9 @@ def test_the_stop_waits_for_the_handle_to_slow_down_within_the_grace() -> None:
     assert not ramp.done  # the ramp is at zero but the handle is still over the limit
     assert ramp.command(fast) < 0.0  # the governor keeps braking meanwhile
     # ... and only the governor: the ramp at zero adds nothing, whichever way the handle turns
-    back = lim.max_velocity + 0.01
-    assert ramp.command(-back) == pytest.approx(lim.gain * 0.01) and lim.gain * 0.01 < 1.0
+    # (a past-the-end ramp u0·s, s < 0, would add 2·0.2 = 0.4 N·m here: more than the governor)
+    back = lim.max_velocity + 0.005
+    assert ramp.command(-back) == pytest.approx(lim.gain * 0.005) and lim.gain * 0.005 < 0.4
     assert ramp.command(lim.max_velocity) == 0.0 and ramp.done  # |w| <= limit: over
 
 
