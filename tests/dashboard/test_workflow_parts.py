@@ -226,3 +226,11 @@ def test_the_live_charts_send_the_span_as_data_never_as_scales() -> None:
         assert len(spans) == 3 and spans[1] is None  # fixed, uPlot's own, fixed again
     finally:
         srv.stop()
+
+
+def test_a_countdown_never_starts_above_its_segments_length() -> None:
+    # the stage's event (work 30-40 s) came before its first telemetry row: the last row is
+    # still at 29.2 s, yet the work interval has 10 s left at most (it read 11)
+    line = text(phase_markdown(live_state(29.2, stage()), Units()))
+    assert "WORK 1/2 · 10 s left in it" in line, line
+    assert "phase 40 s left" in line  # counted from the same moment: the stage has begun

@@ -297,7 +297,9 @@ def phase_markdown(st: LiveState, units: Units) -> Markdown:
     if active is None or stage is None:
         return md("Phase: —")
     row = st.window.last
-    now = float(row[0]) if row is not None else stage.start
+    # the stage's event can arrive before its first telemetry row: a countdown never starts
+    # above the segment's length
+    now = max(float(row[0]), stage.start) if row is not None else stage.start
     left = max(0.0, stage.phase_end - now) if math.isfinite(stage.phase_end) else math.nan
     seg_left = max(0.0, stage.end - now) if math.isfinite(stage.end) else math.nan
     count = active.cfg.protocol.phases if active.cfg.protocol is not None else ()
