@@ -27,6 +27,17 @@ from testing.cli import ROOT
 from testing.live import follow, scenario, wait_for
 
 
+def _one_session(cfg, name: str):  # type: ignore[no-untyped-def]
+    """``cfg`` run as session ``name`` on a worker of its own, followed to its end."""
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(cfg, name)
+        got = follow(worker, reader, timeout=20)
+        reader.close()
+    return got
+
+
 def test_estop_zeroes_torque_within_two_periods_and_latches():
     with Worker(options=WorkerOptions()) as worker:
         worker.start()
@@ -86,12 +97,7 @@ def test_velocity_over_the_limit_is_a_controlled_stop():
         controller={"ks": 0.1, "beta": 0.01, "alpha_r": 0.1},
         seeker={"kind": "fixed", "bracket": [1, 2, 3], "start_delay": 0.0},
     )
-    with Worker(options=WorkerOptions()) as worker:
-        worker.start()
-        reader = worker.open_reader()
-        worker.start_session(cfg, "overspeed")
-        got = follow(worker, reader, timeout=20)
-        reader.close()
+    got = _one_session(cfg, "overspeed")
     end = got.end
     assert end is not None and end.status == "aborted"
     assert end.reason.startswith("velocity over the limit")
@@ -118,12 +124,7 @@ def test_a_person_stronger_than_the_motor_is_a_torque_limit_event_from_the_first
         controller={"kind": "measured"},
         seeker={"kind": "fixed", "setpoint": 1.0, "bracket": [0.5, 1, 2], "start_delay": 0.0},
     )
-    with Worker(options=WorkerOptions()) as worker:
-        worker.start()
-        reader = worker.open_reader()
-        worker.start_session(cfg, "strong")
-        got = follow(worker, reader, timeout=20)
-        reader.close()
+    got = _one_session(cfg, "strong")
     d = got.data[got.data[:, INDEX["phase"]] >= 0]
     clamped = (d[:, INDEX["flags"]].astype(int) & TORQUE_LIMIT) != 0
     assert clamped[0] and abs(d[0, INDEX["u_out"]]) == 20.0  # clamped from the first period
@@ -152,12 +153,7 @@ def test_passivity_breach_stops_the_session_at_the_first_breach():
     ref = run_simulation(cfg)
     breach = int(np.argmax(ref.column("W") < -1e-3))
     assert breach > 0  # the offline run breaches too, at this step
-    with Worker(options=WorkerOptions()) as worker:
-        worker.start()
-        reader = worker.open_reader()
-        worker.start_session(cfg, "passive")
-        got = follow(worker, reader, timeout=20)
-        reader.close()
+    got = _one_session(cfg, "passive")
     end = got.end
     assert end is not None and end.status == "aborted"
     assert end.reason.startswith("passivity breached")
