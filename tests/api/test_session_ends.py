@@ -95,16 +95,30 @@ def optimum_of(c: httpx.Client, uid: int) -> tuple[float | None, int]:
     return current, len(sp["history"])
 
 
+def run_to_end(
+    srv: ServerProcess,
+    c: httpx.Client,
+    name: str,
+    profile: dict[str, Any],
+    request: dict[str, Any],
+    timeout: float,
+) -> tuple[int, tuple[float | None, int], int, dict[str, Any]]:
+    """A user with a hand-set optimum, one session of theirs started over REST and waited
+    to its end: (user id, their optimum before, session id, the ended session's body)."""
+    uid = user_with_optimum(c, name, profile)
+    before = optimum_of(c, uid)
+    r = c.post("/api/v1/sessions", json={"user_id": uid, **request})
+    assert r.status_code == 201, r.text
+    sid = int(r.json()["id"])
+    return uid, before, sid, srv.wait_status(sid, ENDED, timeout)
+
+
 def test_the_velocity_limit_ends_the_session_aborted_at_zero_torque(
     server: ServerProcess,
 ) -> None:
     with server.client("trainer") as c:
-        uid = user_with_optimum(c, "Strong", {"kind": "hill", "tau0": 20.0, "wmax": 12.0})
-        before = optimum_of(c, uid)
-        r = c.post("/api/v1/sessions", json={"user_id": uid, **OVERSPEED})
-        assert r.status_code == 201, r.text
-        sid = r.json()["id"]
-        body = server.wait_status(sid, ENDED, 20.0)
+        strong = {"kind": "hill", "tau0": 20.0, "wmax": 12.0}
+        uid, before, sid, body = run_to_end(server, c, "Strong", strong, OVERSPEED, 20.0)
         session = body["session"]
         assert session["status"] == "aborted", session
         reason = session["abort_reason"]
@@ -132,14 +146,8 @@ def test_a_machine_fault_ends_the_session_faulted_and_stores_no_setpoint(
     server: ServerProcess,
 ) -> None:
     with server.client("trainer") as c:
-        uid = user_with_optimum(c, "Hill", HILL)
-        before = optimum_of(c, uid)
-        r = c.post(
-            "/api/v1/sessions", json={"user_id": uid, "duration": 30.0, "seed": 1, "seeker": QUICK}
-        )
-        assert r.status_code == 201, r.text
-        sid = r.json()["id"]
-        body = server.wait_status(sid, ENDED, 30.0)
+        request = {"duration": 30.0, "seed": 1, "seeker": QUICK}
+        uid, before, sid, body = run_to_end(server, c, "Hill", HILL, request, 30.0)
         session = body["session"]
         assert session["status"] == "faulted", session
         assert session["abort_reason"] == "non-finite measured velocity w = nan"
@@ -167,12 +175,10 @@ def test_a_passivity_breach_ends_the_session_aborted_where_the_offline_run_breac
     strict: ServerProcess,
 ) -> None:
     with strict.client("trainer") as c:
-        uid = user_with_optimum(c, "Barely there", PASSIVE_PERSON)
-        before = optimum_of(c, uid)
-        r = c.post("/api/v1/sessions", json={"user_id": uid, "seed": 3, **PASSIVE})
-        assert r.status_code == 201, r.text
-        sid = r.json()["id"]
-        body = strict.wait_status(sid, ENDED, 20.0)
+        request = {"seed": 3, **PASSIVE}
+        uid, before, sid, body = run_to_end(
+            strict, c, "Barely there", PASSIVE_PERSON, request, 20.0
+        )
         session = body["session"]
         assert session["status"] == "aborted", session
         assert session["abort_reason"].startswith("passivity breached: W = ")
