@@ -131,9 +131,12 @@ def test_sigterm_zeroes_and_exits_cleanly():
 def test_shutdown_ends_a_running_session_and_removes_the_ring():
     worker, reader = _start()
     name = worker.ring_info.name
-    reader.close()  # type: ignore[attr-defined]
     proc = worker._proc
     events = worker.shutdown(timeout=5.0)
+    last = reader.read().data[-1]  # type: ignore[attr-defined]
+    reader.close()  # type: ignore[attr-defined]
+    # the shutdown's zero-torque record: no flag (not an e-stop, a fault or a limit)
+    assert last[INDEX["u_out"]] == 0.0 and last[INDEX["flags"]] == 0.0
     kinds = [e.kind for e in events]
     assert "session_ended" in kinds and kinds[-1] == "exited"
     end = next(e for e in events if e.kind == "session_ended")

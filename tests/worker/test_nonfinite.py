@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 
 from sessions.codes import FLAG_FAULT
+from sessions.loop import Loop
 from sessions.machine import MachineSpec, SimFault
 from sessions.worker import Worker, WorkerOptions
 from sessions.worker.ring import INDEX
+from sessions.worker.supervisor import Supervisor
 from testing.live import follow, scenario
 
 AT = 3.0  # s: the fault's start (after all of the next session: 0.2 s, then its wind-down)
@@ -88,3 +90,22 @@ def test_an_overflow_inside_the_loop_aborts_the_session_with_zero_torque():
     assert end.summary.abort_reason == end.reason  # the summary says why it ended
     assert not end.summary.converged
     assert nxt is not None and nxt.status == "completed"
+
+
+def test_a_summary_with_a_non_finite_figure_keeps_what_is_finite():
+    # The loop's own checks stop a non-finite value before it reaches a figure; if one got
+    # there all the same (a broken integral), the session still gets a summary: the finite
+    # figures as they are, the others 0, the reason kept, frozen once.
+    loop = Loop(scenario(duration=5.0))
+    loop.begin(0.0, 0.0)
+    for k in range(300):
+        loop.step(0.003 * k, 3.0, 2.0)
+    loop.passivity.work = math.inf
+    sup = Supervisor(None, loop, "s", 5000, 0.5)  # type: ignore[arg-type]  # freeze: no host
+    summary = sup.freeze("aborted", "why it ended")
+    assert summary.abort_reason == "why it ended" and not summary.converged
+    assert summary.work == 0.0 and summary.duration == loop.elapsed == pytest.approx(0.3)
+    assert summary.mean_power == loop.mean_power > 0 and summary.seeker == loop.seeker.kind
+    assert sup.freeze("completed", "another") is summary  # frozen once
+    done = Supervisor(None, loop, "s", 5000, 0.5).freeze("completed", "duration reached")  # type: ignore[arg-type]
+    assert done.abort_reason is None and done.work == 0.0

@@ -22,6 +22,7 @@ from sessions.codes import FLAG_ESTOP, TORQUE_LIMIT
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.simulation import run_simulation
 from sessions.worker import Worker, WorkerError, WorkerOptions
+from sessions.worker.messages import StartSession
 from sessions.worker.ring import INDEX
 from testing.cli import ROOT
 from testing.live import follow, scenario, wait_for
@@ -73,6 +74,29 @@ def test_estop_zeroes_torque_within_two_periods_and_latches():
         worker.start_session(scenario(duration=0.3), "after-reset")  # an explicit start does
         assert follow(worker).end.status == "completed"  # type: ignore[union-attr]
         reader.close()
+
+
+def test_a_start_or_a_reset_during_a_session_is_refused_by_the_worker_itself():
+    # The handle refuses a second start first; the worker must refuse it too (another
+    # parent, a race): the command is answered, named, timed, and the session goes on.
+    with Worker(options=WorkerOptions()) as worker:
+        worker.start()
+        reader = worker.open_reader()
+        worker.start_session(scenario(duration=1.0), "first")
+        follow(worker, until="timing")
+        asked = time.monotonic()
+        worker._send(StartSession(scenario(duration=1.0), "second"))  # past the handle
+        worker.reset()  # never clears anything while a session runs
+        got = follow(worker, reader, timeout=20)
+        reader.close()
+    answered = [(r.command, r.reason) for r in got.of("rejected")]
+    assert answered == [
+        ("start", "a session is running"),
+        ("reset", "a session is running; stop it first"),
+    ]
+    assert all(asked <= r.t <= got.end.t for r in got.of("rejected"))  # type: ignore[union-attr]
+    assert got.end is not None and got.end.status == "completed"
+    assert got.end.session_id == "first" and got.of("session_started") == []
 
 
 def test_estop_while_idle_latches_too():
