@@ -68,6 +68,7 @@ def test_a_nan_measurement_is_a_latched_fault_with_zero_torque(kind, controller,
     engine = ["t", "q", "w", "wd", "ad", "u", "tau", "p", "W", "gamma", "u_out"]
     assert np.isfinite(d[:-1][:, [INDEX[c] for c in engine]]).all()
     assert math.isfinite(end.summary.mean_power) and end.summary.duration == pytest.approx(AT)
+    assert end.summary.abort_reason == end.reason  # the summary says why it ended
     assert nxt is not None and nxt.status == "completed"
 
 
