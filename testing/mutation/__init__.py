@@ -33,6 +33,7 @@ MODULES: tuple[Target, ...] = (
         "supervisor",
         ("sessions/worker/supervisor.py",),
         (
+            "tests/worker/test_supervisor.py",
             "tests/worker/test_stop_ramp.py",
             "tests/worker/test_safety.py",
             "tests/worker/test_session.py::test_the_end_brings_the_handle_to_rest_then_ramps_torque_out_and_never_drives",
