@@ -153,6 +153,44 @@ def test_data_fed_while_a_commit_waits_on_a_lock_is_kept(sqlite_store, caplog) -
     assert msg.startswith(f"session {sid}: flush failed, will retry: ") and "locked" in msg
 
 
+def test_an_event_fed_during_a_commit_is_committed_right_after_it(sqlite_store, caplog) -> None:  # type: ignore[no-untyped-def]
+    """Rows wait for the interval (a commit a second, not one per row); an event never waits:
+    fed while the thread's commit waits on another writer, it is committed right after that
+    commit, not an interval later. The commit that waited takes the write lock first (BEGIN
+    IMMEDIATE), so the other writer's commit meanwhile does not make it fail."""
+    store, path = sqlite_store
+    sid = running(store)
+    interval = 1.0
+    rec = store.recorder(sid, flush_interval=interval)
+    caplog.set_level(logging.WARNING, logger="sessions.store.recorder")
+    rec.add_rows(telemetry(0.2))
+    time.sleep(0.3)
+    assert rec.flushes == 0 and store.telemetry.span(sid).samples == 0  # kept for the interval
+    holder = sqlite3.connect(path, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")  # another writer, holding the lock
+    holder.execute("CREATE TABLE other_writer (x)")
+    try:
+        rec.add_event(0.1, "first", {})  # the thread's commit begins, and waits on the lock
+        wait_for(rec._flush_lock.locked)
+        rec.add_event(0.2, "second", {})  # fed while it waits
+        time.sleep(0.1)
+        holder.execute("COMMIT")  # the other writer's data goes in first
+    finally:
+        holder.close()
+    seen: dict[int, float] = {}  # events committed -> when first seen
+    deadline = time.monotonic() + 10.0
+    while len(seen) < 2 or max(seen) < 2:
+        seen.setdefault(len(store.sessions.events(sid)), time.monotonic())
+        assert time.monotonic() < deadline, f"events seen: {seen}"
+        time.sleep(0.005)
+    first = seen.get(1, seen[2])
+    assert seen[2] - first < interval / 2  # right after, not at the next interval
+    assert [e.kind for e in store.sessions.events(sid)] == ["first", "second"]
+    assert rec.error is None and store.telemetry.span(sid).samples == 200
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]  # nothing failed
+    rec.close()
+
+
 def test_a_recorder_whose_session_ended_elsewhere_says_so_and_stops(store: Store, caplog) -> None:  # type: ignore[no-untyped-def]
     sid = running(store)
     rec = store.recorder(sid, flush_interval=0.05)
