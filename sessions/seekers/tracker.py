@@ -25,6 +25,12 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   (the windows overlap: a refit brings REFIT/track_memory of new data). On a clean signal
   θ follows within seconds; on a noisy one it moves only as the evidence accumulates, so
   noise does not make it wander. At most ``RATE``·θ per second;
+- the slope decides when the vertex cannot (:meth:`Tracker._slope_step`): with the search's
+  curvature held, the vertex now is u ± σu, and |u − θ| > K_SLOPE·σu means the slope at θ
+  rejects θ as the optimum. On a flat top σu is 20-30 % of θ at every refit (the filter
+  takes no vertex) while that slope is significant: θ is then sent to the nearest point
+  the slope does not reject, u ± K_SLOPE·σu (a vertex known to PRECISE_STEP of θ, with no
+  other maximum near θ, is a whole Newton step);
 - at a bound, with the slope pointing outward beyond two standard errors: ``at_bound`` (or
   one expansion step with ``expand``). When θ leaves the bound again the optimum has come
   inside: the search's result is then recorded as converged there.
@@ -54,6 +60,8 @@ MIN_ROWS = 50
 DITHER_COST = 0.003
 PRECISION = 0.02
 MIN_DITHER = 0.008
+K_SLOPE = 2.5  # standard errors of the slope at θ that reject θ as the optimum
+PRECISE_STEP = 0.05  # a Newton step is taken whole when its vertex is known to this of θ
 
 
 def smoothstep(x: float) -> float:
@@ -148,16 +156,9 @@ class Tracker:
             return None
         theta = self.theta
         v, se = f.now if f.now is not None else f.vertex()
-        if math.isfinite(v) and math.isfinite(se) and abs(v - theta) <= WINDOW * theta:
-            self._filter(v, se, dt_fit)
-        else:  # no maximum near θ in the rows (they are on a flank): a Newton step with
-            self._filter(math.nan, math.inf, dt_fit)  # the search's curvature, if it is
-            g = self._fit(t, fixed=True)  # clear which way the top went
-            if g is not None and g.now is not None:
-                u, su = g.now
-                if math.isfinite(u) and abs(u - theta) > 3.0 * su and su < 0.05 * theta:
-                    self.x = u
-                    self.var = max(self.var, su * su)
+        near = math.isfinite(v) and math.isfinite(se) and abs(v - theta) <= WINDOW * theta
+        self._filter(v if near else math.nan, se if near else math.inf, dt_fit)
+        self._slope_step(t, newton=not near)
         self.x = min(max(self.x, (1.0 - WINDOW) * theta), (1.0 + WINDOW) * theta)
         limit = RATE * theta * dt_fit
         new = self.owner.clamp(theta + min(max(self.x - theta, -limit), limit))
@@ -174,6 +175,30 @@ class Tracker:
         ev = Evaluation(t, new, power, math.sqrt(max(float(f.cov[0, 0]), 0.0)))
         owner.evaluations.append(ev)
         return ev
+
+    def _slope_step(self, t: float, *, newton: bool) -> None:
+        """When the slope at θ rejects θ as the optimum, θ moves that way even if the vertex
+        is poorly known. The fit with the search's curvature held gives the vertex now, u ± σu;
+        |u − θ| > K_SLOPE·σu is the slope at θ beyond K_SLOPE standard errors. A vertex known
+        to PRECISE_STEP of θ with no other maximum near θ (the rows on a flank): a Newton
+        step to u. Otherwise (a flat top: every refit's vertex uncertain by 20-30 % of θ, so
+        the Kalman filter takes none of them while w* leaves) θ is sent to the nearest point
+        the slope does not reject, u ± K_SLOPE·σu, unless the filter already goes as far."""
+        g = self._fit(t, fixed=True)
+        if g is None or g.now is None:
+            return
+        u, su = g.now
+        theta = self.theta
+        if not (math.isfinite(u) and math.isfinite(su) and abs(u - theta) > K_SLOPE * su):
+            return
+        if newton and su < PRECISE_STEP * theta:
+            self.x = u
+            self.var = max(self.var, su * su)
+            return
+        edge = u + math.copysign(K_SLOPE * su, theta - u)  # between u and θ
+        if (self.x - theta) / (edge - theta) < 1.0:  # the filter stops short of it (or turns)
+            self.x = edge
+            self.var = max(self.var, (edge - theta) ** 2)
 
     def _fit(self, t: float, *, fixed: bool = False) -> Fit | None:
         """The local model around θ (within three dither amplitudes), from the rows of the
