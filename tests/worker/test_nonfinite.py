@@ -110,3 +110,27 @@ def test_a_summary_with_a_non_finite_figure_keeps_what_is_finite():
     assert sup.freeze("completed", "another") is summary  # frozen once
     done = Supervisor(None, loop, "s", 5000, 0.5).freeze("completed", "duration reached")  # type: ignore[arg-type]
     assert done.abort_reason is None and done.work == 0.0
+
+
+@pytest.mark.parametrize(
+    ("figures", "kept"),
+    [
+        # (power_sum, peak_power, work, minimum) -> (mean_power, peak_power, work, passivity_min)
+        ((math.inf, math.nan, -0.1, -0.25), (0.0, 0.0, -0.1, -0.25)),
+        ((None, None, -0.1, -math.inf), (None, None, -0.1, 0.0)),
+        ((None, None, math.nan, math.nan), (None, None, 0.0, 0.0)),
+    ],
+)
+def test_the_fallback_summary_keeps_each_finite_figure_and_zeroes_the_others(figures, kept):
+    loop = Loop(scenario(duration=5.0))
+    loop.begin(0.0, 0.0)
+    for k in range(300):
+        loop.step(0.003 * k, 3.0, 2.0)
+    before = (loop.mean_power, loop.peak_power)
+    power_sum, peak, work, minimum = figures
+    if power_sum is not None:
+        loop.power_sum, loop.peak_power = power_sum, peak
+    loop.passivity.work, loop.passivity.minimum = work, minimum
+    s = Supervisor(None, loop, "s", 5000, 0.5).freeze("aborted", "why")  # type: ignore[arg-type]
+    want = tuple(b if k is None else k for b, k in zip((*before, 0, 0), kept, strict=True))
+    assert (s.mean_power, s.peak_power, s.work, s.passivity_min) == want

@@ -22,7 +22,7 @@ from sessions.codes import (
     TORQUE_LIMIT,
     VELOCITY_LIMIT,
 )
-from sessions.config import SessionConfig
+from sessions.config import SessionConfig, parse_session_config
 from sessions.loop import Loop
 from sessions.machine.sim import SimMachine
 from sessions.summary import summarize
@@ -122,8 +122,28 @@ def test_the_duration_winds_down_to_rest_then_ramps_the_torque_out():
     ramp = sup.ramp
     assert ramp is not None and ramp.u0 == got.u[-1] and ramp.steps == round(RAMP / loop.dt)
     assert set(got.added) == {0}
+    assert isinstance(stops[0].t, float) and sup.ramp.limits is loop.limits  # type: ignore[union-attr]
     sup.begin_stop("aborted", "later")  # once begun, a stop is not begun again
     assert sup.ramp is ramp and sup.stop_end == End("completed", "duration reached")
+
+
+def test_a_protocol_that_ends_by_itself_completes():
+    # warm-up and cool-down: the protocol brings the handle to rest before the duration
+    cfg = parse_session_config(
+        {
+            "user": {"noise": 0.0},
+            "protocol": {
+                "phases": [{"kind": "warmup", "duration": 2, "ramp": 1}, {"kind": "cooldown"}]
+            },
+        }
+    )
+    host, sup = session(cfg)
+    got = run(host, sup, 200_000)
+    assert len(got.u) < round(cfg.duration * cfg.rate)
+    assert sup.ending is None  # no wind-down was asked: the protocol's own end
+    assert sup.stop_end == End("completed", "protocol finished")
+    assert [e.reason for e in host.of(Stopping)] == ["protocol finished"]
+    assert sup.summary == summarize(sup.loop) and sup.summary.abort_reason is None
 
 
 def test_a_stop_begun_without_a_torque_ramps_from_the_last_command():
@@ -158,6 +178,8 @@ def test_velocity_over_the_limit_aborts_with_a_controlled_stop():
     assert [e.reason for e in host.of(Stopping)] == [reason]
     assert sup.stop_end == End("aborted", reason) and sup.summary.abort_reason == reason
     assert sup.ending is None and host.stopping == 1
+    assert isinstance(host.of(Stopping)[0].t, float)
+    assert sup.ramp is not None and sup.ramp.u0 == got.u[-1]  # from this period's torque
 
 
 def test_a_torque_limit_is_an_event_each_time_the_clamp_begins():
@@ -214,6 +236,8 @@ def test_a_passivity_breach_aborts_at_its_period_and_flags_it():
     assert [(e.value, e.session_id, e.session_t) for e in hit] == [(work, "s", sup.loop.row[0])]
     reason = f"passivity breached: W = {work:.3g} J < -c² = -0.001 J"
     assert [e.reason for e in host.of(Stopping)] == [reason]
+    assert hit[0].t == CLOCK + sup.loop.elapsed
+    assert sup.ramp is not None and sup.ramp.u0 == got.u[-1]  # from this period's torque
     assert sup.stop_end == End("aborted", reason) and sup.summary.abort_reason == reason
 
 
