@@ -15,9 +15,11 @@ import pytest
 from sessions.config import parse_session_config
 from sessions.loop import Loop
 from sessions.machine import MachineError, MachineSpec, MachineState, make_machine
-from sessions.machine.sim import SimMachine
+from sessions.machine.sim import HUGE_TORQUE, SimMachine
+from sessions.machine.spec import SimFault
 from sessions.people import SimulatedUser
 from sessions.plant import Plant
+from sessions.protocol.cues import CuedPerson
 from sessions.simulation import run_simulation
 
 
@@ -127,3 +129,72 @@ def test_machine_spec_validation():
         )
     with pytest.raises(ValueError):
         MachineSpec(kind="odrive", device="/dev/x", torque_constant=0.1, direction=2)
+
+
+def _readings(m: SimMachine, cfg, n: int) -> list[tuple[float, float, float]]:  # type: ignore[no-untyped-def]
+    m.connect()
+    m.arm(cfg)
+    m.activate()
+    out = []
+    for _ in range(n):
+        out.append(m.read())
+        m.write(0.5)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("kind", "bad"),
+    [("nan-angle", 0), ("nan-velocity", 1), ("nan-torque", 2), ("huge-torque", 2)],
+)
+def test_an_injected_fault_starts_at_its_period_and_spoils_only_its_reading(kind, bad):
+    # independent truth: the same simulator without the fault, period by period
+    cfg = cfg_()
+    clean = _readings(SimMachine(), cfg, 600)
+    m = SimMachine(SimFault(kind=kind, at=0.25))
+    got = _readings(m, cfg, 600)
+    at = round(0.25 / cfg.dt)
+    assert got[:at] == clean[:at]  # nothing before its start
+    for k in range(at, 600):
+        for i in range(3):
+            if i != bad:
+                assert got[k][i] == clean[k][i]  # the other readings are the plant's own
+        if kind == "huge-torque":
+            assert got[k][bad] == HUGE_TORQUE
+        else:
+            assert math.isnan(got[k][bad])
+    assert m.steps == 600 and m.dt == cfg.dt and m.fault_step == at
+    m.disarm()
+    m.arm(cfg)  # the next session starts clean and faults at the same session time
+    assert m.steps == 0 and m.fault_step == at and m.read() == clean[0]
+
+
+def test_an_injected_exit_ends_the_caller_at_its_period_with_its_reason():
+    cfg = cfg_()
+    m = SimMachine(SimFault(kind="worker-exit", at=0.01))
+    m.connect()
+    m.arm(cfg)
+    m.activate()
+    for _ in range(10):
+        m.read()
+        m.write(0.0)
+    with pytest.raises(SystemExit, match=r"^injected fault worker-exit at t = 0.01 s$"):
+        m.read()
+
+
+def test_a_new_simulator_has_no_session_and_the_person_follows_the_cues():
+    m = SimMachine()
+    assert (m.plant, m.user, m.dt, m.fault, m.steps, m.fault_step) == (None, None, 0.0, None, 0, -1)
+    assert m.truth() is None
+    cfg = cfg_()
+    loop = Loop(cfg)
+    m.follow(loop.reference)
+    m.connect()
+    m.arm(cfg)
+    assert isinstance(m.user, CuedPerson) and m.truth() is m.user
+    assert m.plant is not None and cfg.machine.inertia == m.plant.inertia
+    m.close()
+    assert m.plant is None and m.user is None
+    plain = SimMachine()
+    plain.connect()
+    plain.arm(cfg)
+    assert isinstance(plain.user, SimulatedUser)
