@@ -29,6 +29,7 @@ class FailingSim(SimMachine):
         super().__init__()
         self.fail: dict[str, BaseException] = {}
         self.zeros = 0
+        self.disarms = 0
 
     def _maybe(self, op: str) -> None:
         if op in self.fail:
@@ -54,6 +55,7 @@ class FailingSim(SimMachine):
         self._maybe("zero")
 
     def _disarm(self) -> None:
+        self.disarms += 1
         self._maybe("disarm")
 
     def _reset(self) -> None:
@@ -168,15 +170,51 @@ def test_a_failing_read_or_write_latches_a_fault_with_zero_torque(op, exc, reaso
 
 
 @pytest.mark.parametrize("op", ["connect", "arm"])
-def test_a_failing_connect_or_arm_latches_too(op):
+@pytest.mark.parametrize(
+    ("exc", "reason"),
+    [
+        (OSError("no such device"), "OSError: no such device"),
+        (MachineError("firmware 0.5.2 refused"), "firmware 0.5.2 refused"),
+    ],
+)
+def test_a_failing_connect_or_arm_latches_too(op, exc, reason):
     m = FailingSim()
-    m.fail[op] = OSError("no such device")
+    m.fail[op] = exc
     if op == "arm":
         m.connect()
-    with pytest.raises(MachineError, match=r"^OSError: no such device$"):
+    with pytest.raises(MachineError) as got:
         m.connect() if op == "connect" else m.arm(cfg_())
-    assert m.state is MachineState.FAULT and m.fault_reason == "OSError: no such device"
+    assert str(got.value) == reason
+    assert m.state is MachineState.FAULT and m.fault_reason == reason
     assert m.zeros == 1
+
+
+def test_a_command_at_or_beyond_1e300_is_a_fault_not_a_clamped_torque():
+    for u in (1e300, -1e300):
+        m = active()
+        with pytest.raises(MachineError, match="non-finite torque command"):
+            m.write(u)
+        assert m.state is MachineState.FAULT and m.last_command == 0.0
+    m = active()
+    m.write(9.9e299)  # finite, absurd: clamped like any other
+    assert m.last_command == 10.0
+
+
+def test_the_simulator_has_the_sensor_controller_a_needs():
+    m = SimMachine()
+    m.connect()
+    m.arm(parse_session_config({"duration": 1.0, "controller": {"kind": "measured"}}))
+    assert m.state is MachineState.ARMED
+
+
+def test_close_disarms_an_armed_machine_only():
+    m = active()
+    m.close()
+    assert m.disarms == 1 and m.state is MachineState.CLOSED
+    m = FailingSim()
+    m.connect()
+    m.close()
+    assert m.disarms == 0 and m.state is MachineState.CLOSED
 
 
 def test_the_first_reason_of_a_fault_is_kept_and_a_failed_reset_keeps_it_latched():

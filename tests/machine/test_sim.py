@@ -112,7 +112,7 @@ def test_measured_controller_needs_a_torque_sensor():
     assert not spec.has_torque_sensor
     m = make_machine(spec)
     m.state = MachineState.CONNECTED  # arming is refused before any I/O
-    with pytest.raises(ValueError, match="no torque sensor"):
+    with pytest.raises(ValueError, match=r"^the odrive machine has no torque sensor"):
         m.arm(cfg)
 
 
