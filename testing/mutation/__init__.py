@@ -39,6 +39,7 @@ MODULES: tuple[Target, ...] = (
             "tests/worker/test_supervisor.py",
             "tests/worker/test_stop_ramp.py",
             "tests/worker/test_nonfinite.py::test_a_summary_with_a_non_finite_figure_keeps_what_is_finite",
+            "tests/worker/test_nonfinite.py::test_the_fallback_summary_keeps_each_finite_figure_and_zeroes_the_others",
         ),
     ),
     # the machine backends' fault handling: the lifecycle and its latched FAULT, the
