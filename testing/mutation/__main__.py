@@ -99,8 +99,13 @@ def diffs(work: Path, names: list[str]) -> dict[str, str]:
 
 
 def key(name: str, text: str) -> tuple[str, str]:
-    """The EQUIVALENT key of a mutant: its function and its "+" lines."""
-    plus = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("+") and ln[:3] != "+++"]
+    """The EQUIVALENT key of a mutant: its function and its "+" lines (a mutant that only
+    removes lines: "- " and the lines removed)."""
+    lines = text.splitlines()
+    plus = [ln[1:].strip() for ln in lines if ln.startswith("+") and ln[:3] != "+++"]
+    if not plus:
+        minus = [ln[1:].strip() for ln in lines if ln.startswith("-") and ln[:3] != "---"]
+        return name.partition("__mutmut_")[0], "- " + " / ".join(minus)
     return name.partition("__mutmut_")[0], " / ".join(plus)
 
 

@@ -17,6 +17,7 @@ import pytest
 from sessions.codes import FLAG_FAULT
 from sessions.loop import Loop
 from sessions.machine import MachineSpec, SimFault
+from sessions.machine.sim import SimMachine
 from sessions.worker import Worker, WorkerOptions
 from sessions.worker.ring import INDEX
 from sessions.worker.supervisor import Supervisor
@@ -97,15 +98,22 @@ def test_a_summary_with_a_non_finite_figure_keeps_what_is_finite():
     # The loop's own checks stop a non-finite value before it reaches a figure; if one got
     # there all the same (a broken integral), the session still gets a summary: the finite
     # figures as they are, the others 0, the reason kept, frozen once.
-    loop = Loop(scenario(duration=5.0))
+    cfg = scenario(duration=5.0)
+    m, loop = SimMachine(), Loop(cfg)
+    m.connect()
+    m.follow(loop.reference)
+    m.arm(cfg)
+    m.activate()
     loop.begin(0.0, 0.0)
-    for k in range(300):
-        loop.step(0.003 * k, 3.0, 2.0)
+    for _ in range(2500):  # to the seeker's first measurements
+        q, w, tau = m.read()
+        m.write(loop.step(q, w, tau))
     loop.passivity.work = math.inf
     sup = Supervisor(None, loop, "s", 5000, 0.5)  # type: ignore[arg-type]  # freeze: no host
     summary = sup.freeze("aborted", "why it ended")
     assert summary.abort_reason == "why it ended" and not summary.converged
-    assert summary.work == 0.0 and summary.duration == loop.elapsed == pytest.approx(0.3)
+    assert summary.work == 0.0 and summary.duration == loop.elapsed == pytest.approx(2.5)
+    assert summary.evaluations == len(loop.seeker.evaluations) > 0
     assert summary.mean_power == loop.mean_power > 0 and summary.seeker == loop.seeker.kind
     assert sup.freeze("completed", "another") is summary  # frozen once
     done = Supervisor(None, loop, "s", 5000, 0.5).freeze("completed", "duration reached")  # type: ignore[arg-type]
