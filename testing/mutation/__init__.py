@@ -54,6 +54,7 @@ MODULES: tuple[Target, ...] = (
         (
             "tests/machine/test_lifecycle.py",
             "tests/machine/test_sim.py",
+            "tests/machine/test_odrive_arm.py",
             "tests/machine/test_odrive_faults.py",
             "tests/machine/test_odrive_firmware.py",
         ),

@@ -123,11 +123,21 @@ def test_faults_land_in_each_firmwares_registers(fw, fault):
 def test_the_firmware_policy():
     for version in SUPPORTED:
         assert accept_firmware(version, "supported").version == version
-    with pytest.raises(MachineError, match=r"0\.5\.1, 0\.5\.4, 0\.5\.5, 0\.5\.6"):
+    with pytest.raises(MachineError) as got:
         accept_firmware((0, 6, 1), "supported")
+    assert str(got.value) == (
+        "unsupported ODrive firmware 0.6.1: supported are 0.5.1, 0.5.4, 0.5.5, 0.5.6 "
+        "(ODrive v3.x, ASCII protocol)"
+    )
     for rev in (2, 3):
-        with pytest.raises(MachineError, match=r"0\.5\.4 or later"):
+        with pytest.raises(MachineError) as got:
             accept_firmware((0, 5, rev), "supported")
+        why = str(got.value)
+        assert why.startswith(f"ODrive firmware 0.5.{rev} is refused: ")
+        assert why.endswith(
+            "; update to 0.5.4 or later (firmware_policy = 'probe' accepts a build of your "
+            "own that has not the bug)"
+        )
         assert accept_firmware((0, 5, rev), "probe").enum_write_bug
 
 
