@@ -41,6 +41,39 @@ def scenario(**over: Any) -> SessionConfig:
     return parse_session_config({**QUICK_SEEK, **over})
 
 
+# The safety scenarios (the worker's tests and the supervisor's in-process ones run the same):
+# a strong person against a weak RISE controller overshoots 4 rad/s in ~75 ms
+OVERSPEED: dict[str, Any] = {
+    "duration": 3.0,
+    "machine": {"max_velocity": 4.0, "max_torque": 20.0},
+    "user": {"tau0": 20.0, "wmax": 12.0},
+    "controller": {"ks": 0.1, "beta": 0.01, "alpha_r": 0.1},
+    "seeker": {"kind": "fixed", "bracket": [1, 2, 3], "start_delay": 0.0},
+}
+# controller A from rest against a 20 N·m motor: −30 N·m on the very first period
+STRONG: dict[str, Any] = {
+    "duration": 0.5,
+    "machine": {"max_torque": 20.0},
+    "user": {"tau0": 30.0, "wmax": 12.0},
+    "controller": {"kind": "measured"},
+    "seeker": {"kind": "fixed", "setpoint": 1.0, "bracket": [0.5, 1, 2], "start_delay": 0.0},
+}
+# next to no person and a hard acceleration to 5 rad/s: W(t) from τ̂·w dips below -c² = -1 mJ
+PASSIVITY_BREACH: dict[str, Any] = {
+    "duration": 3.0,
+    "machine": {"passivity_c2": 1e-3},
+    "user": {"kind": "linear", "tau0": 0.01, "wmax": 0.5},
+    "controller": {"ks": 0.2},
+    "seeker": {
+        "kind": "fixed",
+        "setpoint": 5.0,
+        "bracket": [1, 2, 6],
+        "start_delay": 0.0,
+        "filter": {"pole": 30.0},
+    },
+}
+
+
 def odrive(device: str, **kw: Any) -> MachineSpec:
     """An ODrive spec for the emulated rig at ``device`` (its motor's torque constant)."""
     return MachineSpec(kind="odrive", device=device, **{"torque_constant": EMULATED_KT, **kw})

@@ -25,7 +25,7 @@ from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.messages import StartSession
 from sessions.worker.ring import INDEX
 from testing.cli import ROOT
-from testing.live import follow, scenario, wait_for
+from testing.live import OVERSPEED, PASSIVITY_BREACH, STRONG, follow, scenario, wait_for
 
 
 def _one_session(cfg, name: str):  # type: ignore[no-untyped-def]
@@ -114,13 +114,7 @@ def test_estop_while_idle_latches_too():
 
 def test_velocity_over_the_limit_is_a_controlled_stop():
     # a strong person against a weak RISE controller overshoots 4 rad/s in ~75 ms
-    cfg = scenario(
-        duration=3.0,
-        machine={"max_velocity": 4.0, "max_torque": 20.0},
-        user={"tau0": 20.0, "wmax": 12.0},
-        controller={"ks": 0.1, "beta": 0.01, "alpha_r": 0.1},
-        seeker={"kind": "fixed", "bracket": [1, 2, 3], "start_delay": 0.0},
-    )
+    cfg = scenario(**OVERSPEED)
     got = _one_session(cfg, "overspeed")
     end = got.end
     assert end is not None and end.status == "aborted"
@@ -141,13 +135,7 @@ def test_velocity_over_the_limit_is_a_controlled_stop():
 def test_a_person_stronger_than_the_motor_is_a_torque_limit_event_from_the_first_period():
     # controller A from rest: u = J·ad + J·k·e − τ, here −30 N·m against a 20 N·m motor on the
     # very first period; the limit event says so once, at that period's time
-    cfg = scenario(
-        duration=0.5,
-        machine={"max_torque": 20.0},
-        user={"tau0": 30.0, "wmax": 12.0},
-        controller={"kind": "measured"},
-        seeker={"kind": "fixed", "setpoint": 1.0, "bracket": [0.5, 1, 2], "start_delay": 0.0},
-    )
+    cfg = scenario(**STRONG)
     got = _one_session(cfg, "strong")
     d = got.data[got.data[:, INDEX["phase"]] >= 0]
     clamped = (d[:, INDEX["flags"]].astype(int) & TORQUE_LIMIT) != 0
@@ -161,19 +149,7 @@ def test_a_person_stronger_than_the_motor_is_a_torque_limit_event_from_the_first
 def test_passivity_breach_stops_the_session_at_the_first_breach():
     # next to no person on the handle and a hard acceleration to 5 rad/s: during the transient
     # the observer's τ̂ (28) runs behind, and W(t) from τ̂·w dips below -c² = -1 mJ
-    cfg = scenario(
-        duration=3.0,
-        machine={"passivity_c2": 1e-3},
-        user={"kind": "linear", "tau0": 0.01, "wmax": 0.5},
-        controller={"ks": 0.2},
-        seeker={
-            "kind": "fixed",
-            "setpoint": 5.0,
-            "bracket": [1, 2, 6],
-            "start_delay": 0.0,
-            "filter": {"pole": 30.0},
-        },
-    )
+    cfg = scenario(**PASSIVITY_BREACH)
     ref = run_simulation(cfg)
     breach = int(np.argmax(ref.column("W") < -1e-3))
     assert breach > 0  # the offline run breaches too, at this step

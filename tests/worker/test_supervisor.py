@@ -39,7 +39,7 @@ from sessions.worker.messages import (
     Stopping,
 )
 from sessions.worker.supervisor import End, Supervisor
-from testing.live import scenario
+from testing.live import OVERSPEED, PASSIVITY_BREACH, STRONG, scenario
 
 RAMP = 0.5  # s: the stop ramp's duration (WorkerOptions' default)
 CLOCK = 1000.0  # the host's monotonic clock at session time 0
@@ -160,13 +160,7 @@ def test_a_stop_begun_without_a_torque_ramps_from_the_last_command():
 
 
 def test_velocity_over_the_limit_aborts_with_a_controlled_stop():
-    cfg = scenario(
-        duration=3.0,
-        machine={"max_velocity": 4.0, "max_torque": 20.0},
-        user={"tau0": 20.0, "wmax": 12.0},
-        controller={"ks": 0.1, "beta": 0.01, "alpha_r": 0.1},
-        seeker={"kind": "fixed", "bracket": [1, 2, 3], "start_delay": 0.0},
-    )
+    cfg = scenario(**OVERSPEED)
     host, sup = session(cfg)
     got = run(host, sup)
     w = got.w[-1]
@@ -183,13 +177,7 @@ def test_velocity_over_the_limit_aborts_with_a_controlled_stop():
 
 
 def test_a_torque_limit_is_an_event_each_time_the_clamp_begins():
-    cfg = scenario(
-        duration=0.5,
-        machine={"max_torque": 20.0},
-        user={"tau0": 30.0, "wmax": 12.0},
-        controller={"kind": "measured"},
-        seeker={"kind": "fixed", "setpoint": 1.0, "bracket": [0.5, 1, 2], "start_delay": 0.0},
-    )
+    cfg = scenario(**STRONG)
     host, sup = session(cfg)
     got = run(host, sup)
     clamped = (np.array(got.loop_flags) & TORQUE_LIMIT) != 0
@@ -215,19 +203,7 @@ def test_a_limit_event_is_said_when_its_limit_begins_whatever_the_others_do():
 
 
 def test_a_passivity_breach_aborts_at_its_period_and_flags_it():
-    cfg = scenario(
-        duration=3.0,
-        machine={"passivity_c2": 1e-3},
-        user={"kind": "linear", "tau0": 0.01, "wmax": 0.5},
-        controller={"ks": 0.2},
-        seeker={
-            "kind": "fixed",
-            "setpoint": 5.0,
-            "bracket": [1, 2, 6],
-            "start_delay": 0.0,
-            "filter": {"pole": 30.0},
-        },
-    )
+    cfg = scenario(**PASSIVITY_BREACH)
     host, sup = session(cfg)
     got = run(host, sup)
     work = sup.loop.passivity.work
