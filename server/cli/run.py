@@ -3,11 +3,16 @@
 The session runs in the real-time worker process against the chosen machine: the simulator
 (paced in real time) or an ODrive on a serial device (for instance the one
 ``ergoseek emulate-odrive`` prints). Progress is printed once a second, seeker evaluations as
-they happen, the summary and the loop timing at the end. Ctrl-C stops the session at once
-(zero torque; status ``stopped``). Exit status: 0 completed, 1 aborted or faulted (or the
-machine refused to arm: one line on stderr says why, e.g. an uncalibrated axis, a wrong axis,
-an unsupported firmware, a drive setting that defeats a limit), 2 bad input, 130 stopped by
-Ctrl-C.
+they happen, the summary and the loop timing at the end. Ctrl-C (SIGINT) or SIGTERM stops
+the session at once (zero torque; status ``stopped``), its summary printed. Exit status:
+0 completed, 1 aborted or faulted (or the machine refused to arm: one line on stderr says why,
+e.g. an uncalibrated axis, a wrong axis, an unsupported firmware, a drive setting that defeats
+a limit), 2 bad input, 130 stopped by Ctrl-C, 143 by SIGTERM.
+
+A signal is noted by a handler and acted on by the follow loop, between two reads of the
+worker's events: never an exception in the middle of one. Started with SIGINT ignored (a
+background job of a shell without job control, ``nohup``), Ctrl-C stays ignored, as such a
+job's should; SIGTERM still stops it.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import time
 from typing import Any
@@ -77,6 +83,40 @@ def _machine_spec(args: argparse.Namespace) -> Any:
         raise UsageError(describe_validation_error(exc)) from None
 
 
+class Signals:
+    """SIGINT and SIGTERM, noted while the session runs (the first one; later ones are the
+    same request). The previous handlers are put back on exit."""
+
+    def __init__(self) -> None:
+        self.received: signal.Signals | None = None
+        self._previous: dict[signal.Signals, Any] = {}
+
+    def __enter__(self) -> Signals:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if sig == signal.SIGINT and signal.getsignal(sig) == signal.SIG_IGN:
+                continue  # ignored by whoever started it: Ctrl-C is not this job's
+            self._previous[sig] = signal.signal(sig, self._note)
+        return self
+
+    def _note(self, signum: int, _frame: object) -> None:
+        self.received = self.received or signal.Signals(signum)
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    @property
+    def exit_status(self) -> int:
+        """128 + the signal's number: what a shell reports for a job the signal ended."""
+        return 128 + int(self.received or 0)
+
+
+# the session's reason for each (None: the worker's own, "stopped at once by the operator");
+# a SIGTERM to the whole process group reaches the worker too, which ends it aborted,
+# "terminated (SIGTERM)", on its own
+STOP_REASONS = {signal.SIGINT: None, signal.SIGTERM: "terminated (SIGTERM)"}
+
+
 def _fmt(x: float, spec: str = ".2f") -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
@@ -95,12 +135,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     options = WorkerOptions(cpu=args.cpu, realtime=not args.no_realtime)
     say = (lambda *a: None) if (args.quiet or args.json) else print
-    with Worker(spec, options) as worker:
+    with Signals() as signals, Worker(spec, options) as worker:
         ready = worker.start()
         assert ready is not None
         if ready.fault:
             print(f"ergoseek run: machine fault: {ready.fault}", file=sys.stderr)
             return 1
+        if signals.received is not None:  # before any session: nothing to stop
+            return signals.exit_status
         rt = ready.realtime
         say(
             f"worker pid {ready.pid}: {spec.kind} machine, {cfg.rate:g} Hz, "
@@ -108,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
             + (f", CPU {rt.cpu}" if rt.cpu is not None else "")
             + "".join(f"; {n}" for n in rt.notes)
         )
-        end, interrupted, refused = _follow(worker, cfg, say)
+        end, refused = _follow(worker, cfg, say, signals)
     if refused is not None:
         print(f"ergoseek run: the machine refused the session: {refused}", file=sys.stderr)
         return 1
@@ -116,27 +158,34 @@ def run(args: argparse.Namespace) -> int:
         print("ergoseek run: the session did not report its end", file=sys.stderr)
         return 1
     _report(end, ready, args.json)
-    if interrupted:
-        return 130
+    if signals.received is not None:
+        return signals.exit_status
     return 0 if end.status == "completed" else 1
 
 
-def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool, str | None]:
-    """Run the session to its end, saying what happens; (its SessionEnded, interrupted, why it
-    never started: the machine refused to arm, or the worker was lost first)."""
+def _follow(worker: Any, cfg: Any, say: Any, signals: Signals) -> tuple[Any, str | None]:
+    """Run the session to its end, saying what happens; (its SessionEnded, why it never
+    started: the machine refused to arm, or the worker was lost first). A signal stops it at
+    once and waits (bounded) for its end."""
     reader = worker.open_reader()
     worker.start_session(cfg, f"run-{os.getpid()}")
     end = None
     next_line = time.monotonic() + 1.0
+    stop_by: float | None = None  # when a signal's stop gives up waiting for the end
     try:
         while end is None:
+            if signals.received is not None and stop_by is None:
+                worker.stop(immediate=True, reason=STOP_REASONS[signals.received])
+                stop_by = time.monotonic() + 5.0
+            if stop_by is not None and time.monotonic() > stop_by:
+                return None, None
             for ev in worker.poll():
                 if ev.kind == "session_ended":
                     end = ev
                 elif (ev.kind == "rejected" and ev.command == "start") or (
                     ev.kind == "lost" and end is None
                 ):
-                    return None, False, ev.reason
+                    return None, ev.reason
                 else:
                     _say_event(ev, say)
             batch = reader.read()
@@ -144,24 +193,10 @@ def _follow(worker: Any, cfg: Any, say: Any) -> tuple[Any, bool, str | None]:
             if len(batch) and now >= next_line:
                 next_line += 1.0
                 _say_progress(batch.data[-1], worker.status().timing, say)
-            time.sleep(0.02)
-    except KeyboardInterrupt:
-        worker.stop(immediate=True)
-        deadline = time.monotonic() + 5.0
-        while end is None and time.monotonic() < deadline:
-            for ev in worker.poll():
-                if ev.kind == "session_ended":
-                    end = ev
-            time.sleep(0.01)
-        return end, True, None
+            time.sleep(0.01 if stop_by is not None else 0.02)
     finally:
         reader.close()
-    return end, False, None
-
-
-def _never_started(ev: Any) -> bool:
-    """The session will not run: the machine refused to arm, or the worker is gone."""
-    return (ev.kind == "rejected" and ev.command == "start") or ev.kind == "lost"
+    return end, None
 
 
 def _say_event(ev: Any, say: Any) -> None:

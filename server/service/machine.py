@@ -36,6 +36,7 @@ from sessions.worker import Worker, WorkerError, WorkerOptions
 log = logging.getLogger("ergoseek.machine")
 
 START_TIMEOUT = 10.0  # s for the worker to accept a session
+END_TIMEOUT = 5.0  # s for the pump to record the end of a session the worker has ended
 LIVE_CHANNELS = ("t", "w", "wd", "u", "tau", "p", "W", "gamma")
 
 
@@ -215,6 +216,13 @@ class MachineService:
             healthy = (
                 worker is not None and self.lost is None and worker.state not in ("lost", "closed")
             )
+            active = self.active
+            if healthy and active is not None and worker.state in ("estopped", "faulted"):
+                # the worker has ended it (an e-stop, a fault) and said so; the pump is still
+                # recording its end: the reset waits for that, never refusing a trainer who
+                # sees "e-stopped" in that moment
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(active.ended.wait(), END_TIMEOUT)
             if healthy and self.active is not None:
                 raise BusyError(f"session {self.active.db_id} is running: stop it first")
             if healthy:

@@ -6,6 +6,7 @@ import json
 import os
 import signal
 import subprocess
+import sys
 import time
 
 import pytest
@@ -100,24 +101,70 @@ def test_emulate_odrive_then_run_against_it(quick):
     assert "closed loop" in err and "idle" in err  # the device's own log of the session
 
 
-def test_ctrl_c_stops_with_zero_torque(quick):
+# SIGINT set (default or ignored) before the CLI starts, and kept across the exec: the Ctrl-C
+# test must not depend on how the suite was launched. A suite started as a background job of a
+# shell without job control (``cmd &``) inherits SIGINT ignored, and so would the CLI (as it
+# rightly should: such a job's Ctrl-C is not its own).
+WITH_SIGINT = (
+    "import os, signal, sys; signal.signal(signal.SIGINT, getattr(signal, sys.argv[1])); "
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
+
+
+def _interrupted(quick, sig: signal.Signals, *, group: bool = True, ignore_sigint: bool = False):
+    """``ergoseek run`` of a 30 s session sent ``sig`` 1 s into it (its whole process group,
+    as a terminal or systemd sends it, or the CLI alone, as ``kill PID``): (its process,
+    stdout, stderr, the worker's pid)."""
     proc = subprocess.Popen(
-        [*CLI, "run", quick(30.0)],
+        [sys.executable, "-c", WITH_SIGINT, "SIG_IGN" if ignore_sigint else "SIG_DFL",
+         *CLI, "run", quick(30.0)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
         start_new_session=True,
     )  # fmt: skip
     try:
         first = proc.stdout.readline()  # type: ignore[union-attr]
-        assert first.startswith("worker pid")
+        assert first.startswith("worker pid"), first + proc.stderr.read()  # type: ignore[union-attr]
         worker_pid = int(first.split()[2].rstrip(":"))
         time.sleep(1.0)
-        os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole process group
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            os.kill(proc.pid, sig)
+        if ignore_sigint:
+            time.sleep(1.5)
+            assert proc.poll() is None  # still running: Ctrl-C was not its to take
+            os.killpg(proc.pid, signal.SIGTERM)
         out, err = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
             proc.kill()
+    return proc, out, err, worker_pid
+
+
+def test_ctrl_c_stops_with_zero_torque(quick):
+    proc, out, err, worker_pid = _interrupted(quick, signal.SIGINT)
     assert proc.returncode == 130, err
     assert "session stopped: stopped at once by the operator" in out
+    assert not os.path.exists(f"/proc/{worker_pid}")
+
+
+@pytest.mark.parametrize("group", [True, False], ids=["process-group", "cli-alone"])
+def test_sigterm_stops_with_zero_torque_and_reports(quick, group):
+    # what `kill`, systemd or a container runtime sends: the session ends at once, the summary
+    # printed, 128 + 15 (before: the CLI died at once with nothing said, -15). To the group,
+    # the worker takes it too and ends the session aborted; to the CLI alone, it stops it.
+    proc, out, err, worker_pid = _interrupted(quick, signal.SIGTERM, group=group)
+    assert proc.returncode == 143, err
+    ends = ("stopped", "aborted") if group else ("stopped",)  # (whichever takes it first)
+    assert any(f"session {e}: terminated (SIGTERM)" in out for e in ends), out
+    assert "mean power" in out and "lateness" in out  # the summary and the timing
+    assert not os.path.exists(f"/proc/{worker_pid}")
+
+
+def test_a_background_job_keeps_ctrl_c_ignored_and_stops_on_sigterm(quick):
+    proc, out, err, worker_pid = _interrupted(quick, signal.SIGINT, ignore_sigint=True)
+    assert proc.returncode == 143, err
+    assert "terminated (SIGTERM)" in out
     assert not os.path.exists(f"/proc/{worker_pid}")
 
 
