@@ -150,6 +150,7 @@ class MachineService:
         RequestError (422), NotFoundError (404), BusyError (409)."""
         async with self._lock:
             worker = self._require_worker()
+            await self._recorded_end(worker)
             if self.active is not None:
                 raise BusyError(f"session {self.active.db_id} is running")
             state = worker.status().state
@@ -171,6 +172,17 @@ class MachineService:
             )
             self.hub.session_id = record.id
             return record
+
+    async def _recorded_end(self, worker: Worker) -> None:
+        """A session the worker has ended (and said so: it reads idle, e-stopped or faulted)
+        while the pump is still recording its end: wait (bounded) for that record. A trainer
+        who sees the machine idle or e-stopped and acts in that moment is not refused for a
+        session that no longer runs."""
+        active = self.active
+        if active is None or worker.status().state in ("running", "stopping", "starting"):
+            return
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(active.ended.wait(), END_TIMEOUT)
 
     async def _launch(self, worker: Worker, session: LiveSession) -> None:
         """Hand the session to the worker and wait until it runs it (or refuses)."""
@@ -216,13 +228,8 @@ class MachineService:
             healthy = (
                 worker is not None and self.lost is None and worker.state not in ("lost", "closed")
             )
-            active = self.active
-            if healthy and active is not None and worker.state in ("estopped", "faulted"):
-                # the worker has ended it (an e-stop, a fault) and said so; the pump is still
-                # recording its end: the reset waits for that, never refusing a trainer who
-                # sees "e-stopped" in that moment
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(active.ended.wait(), END_TIMEOUT)
+            if healthy:
+                await self._recorded_end(worker)
             if healthy and self.active is not None:
                 raise BusyError(f"session {self.active.db_id} is running: stop it first")
             if healthy:
