@@ -145,6 +145,40 @@ def test_vertex_standard_error_matches_its_scatter() -> None:
     assert float(np.sqrt(np.mean(np.square(ses)))) == pytest.approx(scatter, rel=0.4)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="regression._noise's AR(1) factor over-covers answered pushes 1.8x (docs/benchmarks.md)",
+)
+def test_vertex_standard_error_matches_its_scatter_when_pushes_are_answered() -> None:
+    # In the loop a push is answered by the controller: the power's noise is correlated over
+    # a few 20 ms rows and then negatively (the handle brought back), no AR(1) process. Here
+    # n(t) = z(t) − 0.5 z(t − 60 ms), z correlated over 30 ms: rows' ρ₁ is high, yet the
+    # long-run variance is small. The AR(1) factor of ρ₁ alone put the standard error at
+    # 1.8× the vertex's scatter over seeds (so the tracker and the search trusted every fit
+    # half as much as they should); the long-run variance puts it at the scatter (branch
+    # seek6-lrv), but the seekers' tuning rests on the wider errors: docs/benchmarks.md.
+    from scipy.signal import lfilter
+
+    n, dt, lag = 15_000, 1e-3, 60
+    t = np.arange(n) * dt
+    w = 3.0 + 0.6 * np.sin(2 * math.pi * t / 5.0)
+    q = np.cumsum(w) * dt
+    a = math.exp(-dt / 0.03)
+    vs, ses = [], []
+    for seed in range(40):
+        white = np.random.default_rng(seed).standard_normal(n + lag)
+        z = lfilter([math.sqrt(1.0 - a * a)], [1.0, -a], white)
+        noise = 0.05 * (z[lag:] - 0.5 * z[:-lag])
+        p = (4.0 - 1.0 * (w - 3.1) ** 2) * (1.0 + noise)
+        f = fit(rows_of(w, p, q), 3.0, 0.6)
+        assert f is not None
+        v, se = f.vertex()
+        vs.append(v)
+        ses.append(se)
+    scatter = float(np.std(vs, ddof=1))
+    assert float(np.sqrt(np.mean(np.square(ses)))) == pytest.approx(scatter, rel=0.25)
+
+
 def test_the_abscissa_ignores_the_persons_own_fluctuation() -> None:
     # w = wd + e with e driven by the power's own noise (the person pushes, the handle speeds
     # up): a regression on raw w reads that as a slope; rows place p at wd + ē (ē averaged
