@@ -43,7 +43,8 @@ MODULES: tuple[Target, ...] = (
         ),
     ),
     # the machine backends' fault handling: the lifecycle and its latched FAULT, the
-    # simulator's faults, the ODrive's pre-arm checks and fault registers
+    # simulator's faults, the ODrive's pre-arm checks and fault registers (test_odrive_checks:
+    # in-process, the emulator in a thread; test_odrive_faults is realtime: deselected)
     Target(
         "machine",
         (
@@ -54,6 +55,7 @@ MODULES: tuple[Target, ...] = (
         (
             "tests/machine/test_lifecycle.py",
             "tests/machine/test_sim.py",
+            "tests/machine/test_odrive_checks.py",
             "tests/machine/test_odrive_arm.py",
             "tests/machine/test_odrive_faults.py",
             "tests/machine/test_odrive_firmware.py",
