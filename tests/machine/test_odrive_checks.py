@@ -22,7 +22,13 @@ from contextlib import contextmanager
 import pytest
 
 from sessions.machine import MachineError
-from sessions.machine.odrive.checks import check_motor, check_ready, reasons, registers
+from sessions.machine.odrive.checks import (
+    check_motor,
+    check_ready,
+    enum_write_refused,
+    reasons,
+    registers,
+)
 from sessions.machine.odrive.emulator import EmulatorConfig
 from sessions.machine.odrive.emulator.pty import OdriveEmulator
 from sessions.machine.odrive.link import AsciiLink
@@ -196,6 +202,24 @@ def test_the_current_limit_must_reach_the_torque_limit_to_a_millionth():
         assert check_motor(link, P, KT, most * (1.0 + 0.5e-6), 1.0)  # float32 settings' slack
         with pytest.raises(MachineError, match="is below the session's torque limit"):
             check_motor(link, P, KT, most * (1.0 + 2e-6), 1.0)
+        # the slack's own edge: 0.7000007000007 × (1 - 1e-6) is 0.7 N·m to the last bit
+        assert most == 0.7000007000007 * (1.0 - 1e-6)
+        assert check_motor(link, P, KT, 0.7000007000007, 1.0)
+
+
+def test_a_current_limit_below_one_ampere_is_a_current_limit():
+    with drive() as (_, link):
+        _write(link, P + "motor.config.current_lim", 0.5)  # a small motor: 0.175 N·m
+        assert check_motor(link, P, KT, 0.175, 1.0) == [
+            "current trip at 8.5 A (current_lim 0.5 + margin 8)"
+        ]
+
+
+def test_a_build_that_refuses_enum_writes_is_told_to_update():
+    assert str(enum_write_refused(FIRMWARES[(0, 5, 3)])) == (
+        "ODrive firmware 0.5.3: this build answers 'not implemented' to enum writes (the bug "
+        "of the released 0.5.3 binaries, fixed in 0.5.4); update the firmware"
+    )
 
 
 # -- registers and reasons: a fault's account --------------------------------------------------

@@ -234,3 +234,4 @@ def test_a_new_simulator_has_no_session_and_the_person_follows_the_cues():
     plain.connect()
     plain.arm(cfg)
     assert isinstance(plain.user, SimulatedUser)
+    assert plain.fault_step == -1  # armed without a fault: none (-1), as before
