@@ -45,9 +45,10 @@ bench: setup
 	@for b in benchmarks/[!_]*.py; do echo "== $$b"; $(BIN)/python $$b --json; done
 
 ## mutation: mutation score of the safety- and security-critical modules (slow, not in `test`;
-## MODULE=auth for one; docs/testing.md, "Mutation testing")
+## MODULE=auth for one; docs/testing.md, "Mutation testing"); the driver runs mutmut under
+## nice -n 10 itself (a second nice here put it at 19)
 mutation: setup
-	nice -n 10 $(BIN)/python -m testing.mutation $(if $(MODULE),--module $(MODULE))
+	$(BIN)/python -m testing.mutation $(if $(MODULE),--module $(MODULE))
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -14,6 +14,7 @@ import fnmatch
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -26,7 +27,11 @@ ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_WORK = ROOT / "build" / "mutation"
 PACKAGES = ("server", "sessions", "webui")  # copied into mutants/ (imported by the tests)
 COPY = (*PACKAGES, "tests", "testing", "pyproject.toml")
-DETECTED = {"killed", "timeout", "caught by type check", "segfault"}  # segfault: -9/-11
+DETECTED = {"killed", "timeout", "caught by type check", "segfault", "aborted"}  # segfault: -9/-11
+# mutmut calls any other exit "suspicious"; a test process that died of SIGABRT ran a mutant
+# that aborts where the code must not (the simulator's injected abort: only its child-process
+# test expects it)
+ABORTED = -signal.SIGABRT
 PENDING = "not checked"  # mutmut's status of a mutant not run yet
 # the tests timed where it happens (marker realtime) fail for the load of a mutation run itself
 PYTEST_ARGS = [
@@ -80,7 +85,7 @@ def results(work: Path, target: Target) -> dict[str, str]:
         src = str(meta.relative_to(work / "mutants").with_suffix(""))
         if any(fnmatch.fnmatch(src, g) for g in target.sources):
             for name, code in json.loads(meta.read_text())["exit_code_by_key"].items():
-                out[name] = status_by_exit_code[code]
+                out[name] = "aborted" if code == ABORTED else status_by_exit_code[code]
     return out
 
 

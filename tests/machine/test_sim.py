@@ -8,6 +8,9 @@ integrated by hand for the torque clamp.
 from __future__ import annotations
 
 import math
+import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -181,6 +184,39 @@ def test_an_injected_exit_ends_the_caller_at_its_period_with_its_reason():
         m.read()
 
 
+ABORT_AT = """
+from sessions.config import parse_session_config
+from sessions.machine.sim import SimMachine
+from sessions.machine.spec import SimFault
+
+cfg = parse_session_config({"duration": 1.0})
+m = SimMachine(SimFault(kind="worker-abort", at=%r))
+m.connect()
+m.arm(cfg)
+m.activate()
+for k in range(30):
+    print(k, flush=True)
+    m.read()
+    m.write(0.0)
+"""
+
+
+@pytest.mark.parametrize(("at", "period"), [(0.0, 0), (0.01, 10)])
+def test_an_injected_abort_kills_the_process_at_its_period(at, period):
+    # the process dies of SIGABRT in its read of the fault's period (1 kHz: t = at), with no
+    # word and no exception (a child: it would take pytest with it)
+    done = subprocess.run(
+        [sys.executable, "-c", ABORT_AT % at],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == -signal.SIGABRT, done.stderr
+    assert done.stdout.split() == [str(k) for k in range(period + 1)]
+    assert "Traceback" not in done.stderr
+
+
 def test_a_new_simulator_has_no_session_and_the_person_follows_the_cues():
     m = SimMachine()
     assert (m.plant, m.user, m.dt, m.fault, m.steps, m.fault_step) == (None, None, 0.0, None, 0, -1)
@@ -198,3 +234,4 @@ def test_a_new_simulator_has_no_session_and_the_person_follows_the_cues():
     plain.connect()
     plain.arm(cfg)
     assert isinstance(plain.user, SimulatedUser)
+    assert plain.fault_step == -1  # armed without a fault: none (-1), as before
