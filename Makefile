@@ -32,7 +32,7 @@ TEST_WORKERS ?= 3
 test: setup system lint
 	@status=0; \
 	ERGOSEEK_WORKER__SPIN_US=0 $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile \
-		--no-loadscope-reorder --durations=25 -m "not realtime and not docker" || status=1; \
+		--durations=25 -m "not realtime and not docker" || status=1; \
 	$(BIN)/python -m pytest --durations=10 -m "realtime or docker" || status=1; \
 	exit $$status
 
