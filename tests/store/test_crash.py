@@ -9,6 +9,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
 from datetime import timedelta
 from pathlib import Path
@@ -26,11 +27,14 @@ LOSS = 1.0  # at most this much data (seconds) may be lost
 
 
 def _kill_writer(url: str, after: float) -> tuple[int, float]:
-    """Run the writer, SIGKILL it ``after`` seconds into feeding; the session id and how
-    long it had been feeding when it died (an upper bound of the newest time it fed)."""
+    """Run the writer, SIGKILL it ``after`` seconds into feeding; the session id and the
+    newest time it had handed to the recorder when it died (the writer's own record of it:
+    on a loaded machine a stalled writer feeds less than the wall clock since its start)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    fd, progress = tempfile.mkstemp(prefix="fed-", suffix=".txt")
+    os.close(fd)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "testing.store_writer", url],
+        [sys.executable, "-m", "testing.store_writer", url, progress],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -43,12 +47,16 @@ def _kill_writer(url: str, after: float) -> tuple[int, float]:
             assert proc.poll() is None, "writer ended early"
             time.sleep(0.001)
         os.kill(proc.pid, signal.SIGKILL)
-        fed_for = time.monotonic() - hello["start"]
+        wall = time.monotonic() - hello["start"]
         assert proc.wait(timeout=10) == -signal.SIGKILL
+        lines = Path(progress).read_text().split()
     finally:
         if proc.poll() is None:
             proc.kill()
         proc.communicate()
+        os.unlink(progress)
+    fed_for = float(lines[-1]) if lines else -0.001
+    assert fed_for <= wall + 1e-9  # (never ahead of the clock: sample k fed after k ms)
     return hello["session"], fed_for
 
 
