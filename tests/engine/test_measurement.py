@@ -4,6 +4,7 @@ seekers (fit.py) and the regression on every sample (regression.py), against kno
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -126,20 +127,29 @@ def test_fit_recovers_a_parabola_under_multiplicative_ripple() -> None:
     assert plain is not None and abs(plain.vertex()[0] - 3.0) > 5 * abs(v - 3.0)
 
 
-def test_vertex_standard_error_matches_its_scatter() -> None:
-    # noise correlated over ~30 ms: the AR(1) inflation keeps the standard error honest
-    n, dt = 15_000, 1e-3
-    t = np.arange(n) * dt
+N, DT = 15_000, 1e-3  # the Monte-Carlo fits' rows: 15 s at 1 kHz
+
+
+def _vertices(noise_of: Callable[[int], np.ndarray]) -> tuple[list[float], list[float]]:
+    """40 fits of p = 4 − (w − 3.1)² with relative noise ``noise_of(seed)`` while w sweeps
+    3 ± 0.6 rad/s: each fit's vertex and its reported standard error."""
+    t = np.arange(N) * DT
     w = 3.0 + 0.6 * np.sin(2 * math.pi * t / 5.0)
-    q = np.cumsum(w) * dt
+    q = np.cumsum(w) * DT
     vs, ses = [], []
     for seed in range(40):
-        p = (4.0 - 1.0 * (w - 3.1) ** 2) * (1.0 + ar1(n, 0.05, math.exp(-dt / 0.03), seed))
+        p = (4.0 - 1.0 * (w - 3.1) ** 2) * (1.0 + noise_of(seed))
         f = fit(rows_of(w, p, q), 3.0, 0.6)
         assert f is not None
         v, se = f.vertex()
         vs.append(v)
         ses.append(se)
+    return vs, ses
+
+
+def test_vertex_standard_error_matches_its_scatter() -> None:
+    # noise correlated over ~30 ms: the AR(1) inflation keeps the standard error honest
+    vs, ses = _vertices(lambda seed: ar1(N, 0.05, math.exp(-DT / 0.03), seed))
     scatter = float(np.std(vs, ddof=1))
     assert abs(float(np.mean(vs)) - 3.1) < 3 * scatter / math.sqrt(len(vs)) + 1e-3
     assert float(np.sqrt(np.mean(np.square(ses)))) == pytest.approx(scatter, rel=0.4)
@@ -159,22 +169,14 @@ def test_vertex_standard_error_matches_its_scatter_when_pushes_are_answered() ->
     # seek6-lrv), but the seekers' tuning rests on the wider errors: docs/benchmarks.md.
     from scipy.signal import lfilter
 
-    n, dt, lag = 15_000, 1e-3, 60
-    t = np.arange(n) * dt
-    w = 3.0 + 0.6 * np.sin(2 * math.pi * t / 5.0)
-    q = np.cumsum(w) * dt
-    a = math.exp(-dt / 0.03)
-    vs, ses = [], []
-    for seed in range(40):
-        white = np.random.default_rng(seed).standard_normal(n + lag)
+    lag, a = 60, math.exp(-DT / 0.03)
+
+    def answered(seed: int) -> np.ndarray:
+        white = np.random.default_rng(seed).standard_normal(N + lag)
         z = lfilter([math.sqrt(1.0 - a * a)], [1.0, -a], white)
-        noise = 0.05 * (z[lag:] - 0.5 * z[:-lag])
-        p = (4.0 - 1.0 * (w - 3.1) ** 2) * (1.0 + noise)
-        f = fit(rows_of(w, p, q), 3.0, 0.6)
-        assert f is not None
-        v, se = f.vertex()
-        vs.append(v)
-        ses.append(se)
+        return 0.05 * (z[lag:] - 0.5 * z[:-lag])
+
+    vs, ses = _vertices(answered)
     scatter = float(np.std(vs, ddof=1))
     assert float(np.sqrt(np.mean(np.square(ses)))) == pytest.approx(scatter, rel=0.25)
 
