@@ -167,6 +167,8 @@ def _follow(worker: Any, cfg: Any, say: Any, signals: Signals) -> tuple[Any, str
     """Run the session to its end, saying what happens; (its SessionEnded, why it never
     started: the machine refused to arm, or the worker was lost first). A signal stops it at
     once and waits (bounded) for its end."""
+    from sessions.worker import WorkerError
+
     reader = worker.open_reader()
     worker.start_session(cfg, f"run-{os.getpid()}")
     end = None
@@ -175,7 +177,10 @@ def _follow(worker: Any, cfg: Any, say: Any, signals: Signals) -> tuple[Any, str
     try:
         while end is None:
             if signals.received is not None and stop_by is None:
-                worker.stop(immediate=True, reason=STOP_REASONS[signals.received])
+                try:
+                    worker.stop(immediate=True, reason=STOP_REASONS[signals.received])
+                except WorkerError:
+                    pass  # it took the group's signal first and is gone: its end is polled
                 stop_by = time.monotonic() + 5.0
             if stop_by is not None and time.monotonic() > stop_by:
                 return None, None

@@ -201,3 +201,51 @@ def test_run_exits_at_once_with_one_line_when_the_machine_refuses_to_arm(quick, 
     assert len(lines) == 1 and words in lines[0], r.stderr
     assert lines[0].startswith("ergoseek run: ")
     assert took < 10.0  # worker start and arm: seconds, never a hang
+
+
+def _alive(pid: int) -> bool:
+    """Running (not exited: gone, or a zombie its parent has not reaped yet)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+class _WorkerTakesItFirst:
+    """A SIGTERM sent to the whole group, as systemd sends it, where the worker is faster:
+    the first time the CLI looks for a signal once the session runs, the worker has already
+    taken its own SIGTERM, ended the session and exited; the CLI's is noted then."""
+
+    def __init__(self, worker) -> None:
+        self.worker, self._received = worker, None
+
+    @property
+    def received(self):
+        if self._received is None and self.worker.state == "running":
+            pid = self.worker.pid
+            os.kill(pid, signal.SIGTERM)
+            deadline = time.monotonic() + 10.0
+            while _alive(pid) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert not _alive(pid), "the worker did not exit on SIGTERM"
+            self._received = signal.SIGTERM
+        return self._received
+
+
+def test_a_sigterm_the_worker_took_first_still_ends_with_its_report(quick):
+    # before: the CLI's stop went to a worker already gone: a traceback, exit 1, no summary
+    # (`test_sigterm_stops_with_zero_torque_and_reports[process-group]` when the worker won)
+    from server.cli.run import _follow
+    from sessions.config import load_scenario
+    from sessions.worker import Worker, WorkerOptions
+
+    cfg = load_scenario(quick(30.0))
+    with Worker(options=WorkerOptions(realtime=False)) as worker:
+        assert worker.start().fault is None
+        signals = _WorkerTakesItFirst(worker)
+        t0 = time.monotonic()
+        end, refused = _follow(worker, cfg, lambda *a: None, signals)
+    assert refused is None and end is not None
+    assert (end.status, end.reason) == ("aborted", "terminated (SIGTERM)")
+    assert time.monotonic() - t0 < 15.0
