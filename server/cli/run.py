@@ -18,6 +18,7 @@ job's should; SIGTERM still stops it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -177,10 +178,9 @@ def _follow(worker: Any, cfg: Any, say: Any, signals: Signals) -> tuple[Any, str
     try:
         while end is None:
             if signals.received is not None and stop_by is None:
-                try:
+                # (a worker that took the group's signal first is gone: its end is polled)
+                with contextlib.suppress(WorkerError):
                     worker.stop(immediate=True, reason=STOP_REASONS[signals.received])
-                except WorkerError:
-                    pass  # it took the group's signal first and is gone: its end is polled
                 stop_by = time.monotonic() + 5.0
             if stop_by is not None and time.monotonic() > stop_by:
                 return None, None
