@@ -241,7 +241,9 @@ def test_a_sigterm_the_worker_took_first_still_ends_with_its_report(quick):
     from sessions.worker import Worker, WorkerOptions
 
     cfg = load_scenario(quick(30.0))
-    with Worker(options=WorkerOptions(realtime=False)) as worker:
+    # (as `run` starts it; liveness is not what this tests: a loaded parallel run stalled a
+    # worker's heartbeat past the default 0.1 s before the signal)
+    with Worker(options=WorkerOptions(heartbeat_timeout=2.0)) as worker:
         assert worker.start().fault is None
         signals = _WorkerTakesItFirst(worker)
         t0 = time.monotonic()
