@@ -78,11 +78,24 @@ def raw_request(
             elif writable:
                 try:
                     k = s.send(out[:65536])
-                except OSError:  # the server closed (reset) on us
+                except OSError:  # the server closed (reset) on us: its answer may be in
+                    got += _left_to_read(s)  # our receive buffer still (as curl reads it)
                     break
                 out = out[k:]
                 sent += k
     return RawReply(_status(got), got.split(b"\r\n\r\n", 1)[0], time.monotonic() - t0, sent)
+
+
+def _left_to_read(s: socket.socket) -> bytes:
+    """What had arrived before a reset: Linux keeps received bytes readable after an RST
+    (a server that answers and closes with our body unread resets the connection, and
+    the send that finds it fails before the answer was read)."""
+    got = b""
+    s.settimeout(0.0)
+    with contextlib.suppress(OSError):
+        while data := s.recv(65536):
+            got += data
+    return got
 
 
 def garbage(port: int, payload: bytes, timeout: float = 2.0) -> int | None:
