@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import select
 import time
 
@@ -64,8 +65,8 @@ class AsciiLink:
             self.ser = serial.Serial(
                 self.device,
                 self.baudrate,
-                timeout=0,
-                write_timeout=self.timeout,
+                timeout=0,  # reads and writes never block: the waits are ours (select)
+                write_timeout=0,
                 exclusive=True,
             )
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -132,17 +133,36 @@ class AsciiLink:
         return data + b"\n"
 
     def send(self, data: bytes) -> None:
-        ser = self.ser
-        if ser is None:
+        """Write ``data`` whole, waiting at most ``timeout`` for the line to take it. A write
+        times out only if an attempt made after the deadline still could not finish: a process
+        descheduled past its deadline (a host stall) finds its bytes gone, not a dead line.
+        (pyserial's own write timeout checks its clock after a write that completed.)"""
+        if self.ser is None:
             raise MachineError("serial port not open")
-        try:
-            n = ser.write(data)
-        except serial.SerialTimeoutException:
-            raise MachineError(f"write timed out after {self.timeout * 1e3:.0f} ms") from None
-        except (serial.SerialException, OSError) as exc:
-            raise MachineError(f"serial write failed: {exc}") from None
-        if n != len(data):
-            raise MachineError("serial write incomplete")
+        fd = self.fd
+        rest = memoryview(data)
+        deadline = time.monotonic() + self.timeout
+        while True:
+            tried = time.monotonic()
+            try:
+                rest = rest[os.write(fd, rest) :]
+            except BlockingIOError:
+                pass  # the line's buffer is full: wait for room
+            except OSError as exc:
+                raise MachineError(f"serial write failed: {exc}") from None
+            if not rest:
+                return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                if tried >= deadline:
+                    raise MachineError(f"write timed out after {self.timeout * 1e3:.0f} ms")
+                continue  # one more attempt, made after the deadline
+            try:
+                _, ready, _ = select.select((), (fd,), (), min(remaining, BEAT_EVERY))
+            except OSError as exc:
+                raise MachineError(f"serial write failed: {exc}") from None
+            if not ready:
+                self.beat()  # a long wait: the heartbeat goes on
 
     def send_text(self, text: str) -> None:
         self.send(self.encode(text))
