@@ -6,10 +6,8 @@ STAMP := $(VENV)/.ergoseek-installed
 
 .PHONY: setup system test lint demo bench mutation clean
 
-$(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+$(STAMP): pyproject.toml .ci/setup-venv
+	PYTHON=$(PYTHON) .ci/setup-venv $(VENV)
 	touch $@
 
 ## setup: the virtual environment with ergoseek and its test tools
@@ -23,7 +21,8 @@ system:
 lint: setup
 	$(BIN)/ruff check .
 
-## test: everything, from a fresh machine: the rooms on $(TEST_WORKERS) parallel workers (one
+## test: everything, from a fresh machine (the venv and the Debian packages installed side by
+## side, then lint): the rooms on $(TEST_WORKERS) parallel workers (one
 ## module per worker at a time), then the tests timed where it happens and the Docker image,
 ## alone (docs/testing.md, "Running the suite"); both parts always run, either failing fails it.
 ## The parallel part's servers pace by sleeping only (no spin before each deadline: a spinning
@@ -32,7 +31,9 @@ lint: setup
 ## worker past 100 ms now and then (CI, 2026-12-02), and no test there times liveness (the
 ## hung-worker tests are `realtime`, run alone at the default)
 TEST_WORKERS ?= 3
-test: setup system lint
+test:
+	@$(MAKE) --no-print-directory -j2 -Otarget setup system
+	@$(MAKE) --no-print-directory lint
 	@status=0; \
 	ERGOSEEK_WORKER__SPIN_US=0 ERGOSEEK_WORKER__HEARTBEAT_TIMEOUT=1 $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile \
 		--durations=25 -m "not realtime and not docker" || status=1; \
