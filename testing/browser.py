@@ -162,18 +162,38 @@ def ws_status(url: str, headers: dict[str, str]) -> int:
         return exc.response.status_code
 
 
+# viser's client sends GUI updates through one throttled sender per panel
+# (client/src/WebsocketUtils.ts, makeThrottledMessageSender(50)): the first update goes at
+# once, and of the updates in the next 50 ms only the latest is sent, to whatever input it
+# belongs. A script that edits three inputs within 50 ms loses the middle one (the CI saw a
+# countdown typed as 2 s run at its default 3 s); a person's hand is slower. So every edit
+# here waits out the window after it, and the next edit or click is sent on its own.
+VISER_SEND_INTERVAL_MS = 50
+
+
+def _sent(page: Page) -> None:
+    page.wait_for_timeout(VISER_SEND_INTERVAL_MS + 20)
+
+
 def pick(page: Page, combobox: str, option: str) -> None:
     # A field left with Tab may hand the focus to a select whose list then opens over what
     # follows it; Escape closes any list that is open before this one is clicked.
     page.keyboard.press("Escape")
     page.get_by_role("combobox", name=combobox, exact=True).click()
     page.get_by_role("option", name=option, exact=True).click()
+    _sent(page)
 
 
 def set_number(page: Page, label: str, value: float) -> None:
     box = page.get_by_label(label, exact=True)
     box.fill(f"{value:g}")
     box.press("Tab")
+    _sent(page)
+
+
+def set_text(page: Page, label: str, value: str) -> None:
+    text_field(page, label).fill(value)
+    _sent(page)
 
 
 def paragraphs(page: Page) -> list[str]:

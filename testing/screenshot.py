@@ -10,7 +10,16 @@ import tempfile
 import time
 from pathlib import Path
 
-from testing.browser import TRAINER, VIEWPORT, DemoServer, chromium, login, readout
+from testing.browser import (
+    TRAINER,
+    VIEWPORT,
+    DemoServer,
+    chromium,
+    login,
+    pick,
+    readout,
+    set_number,
+)
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "dashboard.png"
 
@@ -28,11 +37,8 @@ def capture(out: Path, at_seconds: float = 15.5) -> Path:
     with tempfile.TemporaryDirectory() as tmp, DemoServer(Path(tmp)) as server, chromium() as b:
         page = b.new_page(viewport=VIEWPORT)
         login(page, server.url, TRAINER, server.password)
-        page.get_by_role("combobox", name="User", exact=True).click()
-        page.get_by_role("option", name="Ada (#1)", exact=True).click()
-        duration = page.get_by_label("Duration (s)", exact=True)
-        duration.fill("40")
-        duration.press("Tab")
+        pick(page, "User", "Ada (#1)")
+        set_number(page, "Duration (s)", 40)
         page.get_by_role("button", name="Start", exact=True).click()
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:

@@ -44,7 +44,7 @@ from testing.browser import (
     login,
     pick,
     set_number,
-    text_field,
+    set_text,
     wait_readout,
     wait_text,
     ws_status,
@@ -102,8 +102,8 @@ def test_log_in_and_add_a_user(server: DemoServer, trainer: Afternoon) -> None:
         assert page.get_by_role("button", name=name, exact=True).count() == 1
 
     page.get_by_role("tab", name="Users", exact=True).click()
-    text_field(page, "Name").fill("Hill test person")
-    text_field(page, "Limb").fill("right arm")
+    set_text(page, "Name", "Hill test person")
+    set_text(page, "Limb", "right arm")
     pick(page, "Torque law", "hill")
     set_number(page, "τ0 (N·m)", TAU0)
     set_number(page, "wmax (rad/s)", WMAX)
