@@ -58,7 +58,9 @@ def _machine(
 @contextlib.asynccontextmanager
 async def _running(app: FastAPI, settings: Settings) -> AsyncIterator[Runtime]:
     """Everything the web process runs, built in order and taken down in reverse."""
-    store, recovered = await asyncio.to_thread(open_server_store, settings.store_url())
+    store, recovered = await asyncio.to_thread(
+        open_server_store, settings.store_url(), password_hasher=settings.password_hash.hasher()
+    )
     if recovered:
         log.warning("sessions %s were left running by a crash: marked aborted", recovered)
     log.info("store %s", display_url(store.url))

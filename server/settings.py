@@ -34,6 +34,7 @@ from sessions.machine.odrive.emulator.device import EmulatorConfig
 from sessions.machine.spec import Direction, FirmwarePolicy, MachineSpec, SimFault
 from sessions.requests import Rig
 from sessions.store.database import SQLITE_FILENAME
+from sessions.store.hashing import HashCost
 from sessions.worker.options import LIVE_RATE_MAX, WorkerOptions
 
 MachineKind = Literal["sim", "odrive", "odrive-emulator"]
@@ -108,6 +109,9 @@ class Settings(BaseSettings):
     cookie_secure: bool = Field(False, description="mark the login cookie Secure (behind TLS)")
     allowed_origins: list[str] = Field(
         default_factory=list, description="extra Origins allowed besides the server's own"
+    )
+    password_hash: HashCost = Field(
+        default_factory=HashCost, description="argon2id's cost for new password hashes"
     )
     login_attempts: int = Field(5, ge=1, description="failed logins allowed per window")
     login_window_s: float = Field(300.0, gt=0, description="failed-login window, s")

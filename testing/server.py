@@ -27,6 +27,14 @@ import httpx
 
 from sessions.store import open_store
 from sessions.store.database import SQLITE_FILENAME
+from sessions.store.hashing import OWASP_MIN_MEMORY_KIB, OWASP_MIN_TIME_COST, HashCost
+
+# The tests' servers hash passwords at the least cost the server accepts (OWASP's minimum for
+# argon2id, one lane): a sixth of the default's CPU per login, which the suite does ~300
+# times; tests/store and tests/api check the default and the floor themselves.
+TEST_HASH_COST = HashCost(
+    memory_kib=OWASP_MIN_MEMORY_KIB, time_cost=OWASP_MIN_TIME_COST, parallelism=1
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,6 +71,7 @@ class ServerProcess:
     port: int = field(default_factory=free_port)
     proc: subprocess.Popen[bytes] | None = None
     tokens: dict[str, str] = field(default_factory=dict)
+    hash_cost: HashCost | None = TEST_HASH_COST  # None: the server's default
 
     @property
     def url(self) -> str:
@@ -93,11 +102,17 @@ class ServerProcess:
 
     def start(self, timeout: float = 60.0) -> ServerProcess:
         self.data_dir.mkdir(parents=True, exist_ok=True)
-        with open_store(self.database_url) as store:
+        cost = self.hash_cost
+        hasher = cost.hasher() if cost is not None else None
+        with open_store(self.database_url, password_hasher=hasher) as store:
             for login, password, role in self.accounts:
                 if store.accounts.by_login(login) is None:
                     store.accounts.create(login, password, role)  # type: ignore[arg-type]
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **self.env}
+        costs = {} if cost is None else {
+            f"ERGOSEEK_PASSWORD_HASH__{key.upper()}": str(value)
+            for key, value in cost.model_dump().items()
+        }  # fmt: skip
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **costs, **self.env}
         for leak in ("ERGOSEEK_DATABASE_URL", "ERGOSEEK_CONFIG", "ERGOSEEK_DATA_DIR"):
             if leak not in self.env:
                 env.pop(leak, None)

@@ -60,7 +60,8 @@ def prepare(settings: Settings) -> str:
     from sessions.store import open_store
 
     password = os.environ.get(PASSWORD_ENV) or secrets.token_urlsafe(12)
-    with open_store(settings.store_url()) as store:
+    hasher = settings.password_hash.hasher()
+    with open_store(settings.store_url(), password_hasher=hasher) as store:
         account = store.accounts.by_login(DEMO_LOGIN)
         if account is None:
             store.accounts.create(DEMO_LOGIN, password, "trainer")
