@@ -115,13 +115,16 @@ def _reply(status: int, reason: str, body: dict[str, Any]) -> bytes:
 
 class Gate:
     def __init__(self, listener: socket.socket, link: socket.socket, cfg: GateConfig) -> None:
-        from sessions.store import open_store
-        from sessions.store.tokens import digest
+        # The login tokens only (not the whole Store: no Alembic, NumPy or password checks to
+        # import); the web process migrated the database before it started the gate.
+        from sessions.store.database import Database, database_url
+        from sessions.store.tokens import TokenRepository, digest
 
         self.listener = listener
         self.link = link
         self.cfg = cfg
-        self.store = open_store(cfg.database_url, upgrade=False)
+        self.db = Database(database_url(cfg.database_url))
+        self.tokens = TokenRepository(self.db)
         self.digest = digest
         self.line: Any = None  # EStopLine of the current worker's ring
         # the live logins (digest → account, expiry), so an e-stop needs no store query; the
@@ -158,7 +161,7 @@ class Gate:
         async def read() -> None:
             loop = asyncio.get_running_loop()
             try:
-                rows = await loop.run_in_executor(None, self.store.tokens.live)
+                rows = await loop.run_in_executor(None, self.tokens.live)
             except Exception as exc:  # the store is busy or gone: the fallback query remains
                 log.warning("reading the logins: %s", exc)
                 return
@@ -181,7 +184,7 @@ class Gate:
         if known is not None and known[1] > datetime.now(UTC):
             return known[0]
         loop = asyncio.get_running_loop()
-        account = await loop.run_in_executor(None, self.store.tokens.resolve, token)
+        account = await loop.run_in_executor(None, self.tokens.resolve, token)
         return account
 
     def _attach(self, name: str) -> None:
@@ -361,7 +364,7 @@ class Gate:
         self.listener.close()
         if self.line is not None:
             self.line.close()
-        self.store.close()
+        self.db.dispose()
 
 
 def gate_main(listener: socket.socket, link: socket.socket, cfg: GateConfig) -> None:

@@ -11,16 +11,8 @@ import httpx
 import numpy as np
 
 from testing.live import wait_for
+from testing.processes import exited
 from testing.server import start_server, worker_pid
-
-
-def alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    stat = Path(f"/proc/{pid}/stat")
-    return stat.exists() and stat.read_text().split()[2] != "Z"
 
 
 def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
@@ -34,9 +26,9 @@ def test_server_killed_mid_session_then_restarted(tmp_path: Path) -> None:
         assert wpid is not None
         srv.kill()  # kill -9: no shutdown, no goodbye
         deadline = time.monotonic() + 5
-        while alive(wpid) and time.monotonic() < deadline:
+        while not exited(wpid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not alive(wpid), "the worker must exit (zero torque) when its parent dies"
+        assert exited(wpid), "the worker must exit (zero torque) when its parent dies"
     finally:
         srv.kill()
     again = start_server(tmp_path, port=srv.port)
@@ -110,7 +102,7 @@ def test_sigterm_ends_the_session_as_stopped(tmp_path: Path) -> None:
     wpid = worker_pid(srv.proc.pid)
     assert srv.stop() in (0, -signal.SIGTERM)  # uvicorn re-raises the signal once shut down
     assert "Application shutdown complete" in srv.log()
-    assert wpid is not None and not alive(wpid)
+    assert wpid is not None and exited(wpid)
     again = start_server(tmp_path, port=srv.port)
     try:
         with again.client("viewer") as c:

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from testing.cli import COMMAND, ROOT, ergoseek
+from testing.processes import exited
 
 CLI = COMMAND
 
@@ -203,15 +204,6 @@ def test_run_exits_at_once_with_one_line_when_the_machine_refuses_to_arm(quick, 
     assert took < 10.0  # worker start and arm: seconds, never a hang
 
 
-def _alive(pid: int) -> bool:
-    """Running (not exited: gone, or a zombie its parent has not reaped yet)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
 class _WorkerTakesItFirst:
     """A SIGTERM sent to the whole group, as systemd sends it, where the worker is faster:
     the first time the CLI looks for a signal once the session runs, the worker has already
@@ -226,9 +218,9 @@ class _WorkerTakesItFirst:
             pid = self.worker.pid
             os.kill(pid, signal.SIGTERM)
             deadline = time.monotonic() + 10.0
-            while _alive(pid) and time.monotonic() < deadline:
+            while not exited(pid) and time.monotonic() < deadline:
                 time.sleep(0.01)
-            assert not _alive(pid), "the worker did not exit on SIGTERM"
+            assert exited(pid), "the worker did not exit on SIGTERM"
             self._received = signal.SIGTERM
         return self._received
 

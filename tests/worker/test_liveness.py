@@ -16,6 +16,7 @@ import pytest
 from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, scenario, wait_for
+from testing.processes import exited
 
 # the dead and hung worker's detection is timed where it happens: those two run alone, after
 # the parallel rooms (marker realtime); SIGTERM and shutdown are not timed
@@ -85,7 +86,7 @@ def test_hung_worker_is_declared_lost_and_killed():
         assert noticed > 0.1  # never before the heartbeat timeout
         assert got.of("lost")[0].exitcode is None
         # it was killed: a hung worker must not come back to drive the motor
-        assert wait_for(lambda: not os.path.exists(f"/proc/{pid}") or _zombie(pid), 5.0)
+        assert wait_for(lambda: exited(pid), 5.0)
         last = reader.read()  # type: ignore[attr-defined]
         assert len(last) > 0  # the ring kept what the hung worker ran: check it, never skip
         assert end.summary.duration == pytest.approx(
@@ -94,14 +95,6 @@ def test_hung_worker_is_declared_lost_and_killed():
     finally:
         reader.close()  # type: ignore[attr-defined]
         worker.shutdown()
-
-
-def _zombie(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] in ("Z", "X")
-    except FileNotFoundError:
-        return True
 
 
 def test_sigterm_zeroes_and_exits_cleanly():

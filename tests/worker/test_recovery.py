@@ -17,6 +17,7 @@ from sessions.machine import MachineSpec, SimFault
 from sessions.worker import Worker, WorkerError, WorkerOptions
 from sessions.worker.ring import INDEX
 from testing.live import follow, scenario, wait_for
+from testing.processes import exited
 
 
 def _faulty_worker(kind: str, at: float = 0.5) -> Worker:
@@ -64,7 +65,7 @@ def test_a_command_to_a_dead_worker_finds_it_lost():
         pid = worker.pid
         assert pid is not None
         os.kill(pid, signal.SIGKILL)
-        assert wait_for(lambda: _dead(pid), 5.0)
+        assert wait_for(lambda: exited(pid, threads=True), 5.0)
         # no poll in between: the command itself finds the pipe broken
         with pytest.raises(WorkerError, match=r"lost .*reset"):
             worker.stop()
@@ -76,13 +77,3 @@ def test_a_command_to_a_dead_worker_finds_it_lost():
             worker.estop()
     finally:
         worker.shutdown()
-
-
-def _dead(pid: int) -> bool:
-    """Gone, every thread with it (a zombie leader's other threads may still hold its pipes)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            state = f.read().split(")")[-1].split()[0]
-        return state in ("Z", "X") and len(os.listdir(f"/proc/{pid}/task")) <= 1
-    except FileNotFoundError:
-        return True

@@ -26,6 +26,7 @@ from sessions.worker.messages import StartSession
 from sessions.worker.ring import INDEX
 from testing.cli import ROOT
 from testing.live import OVERSPEED, PASSIVITY_BREACH, STRONG, follow, scenario, wait_for
+from testing.processes import exited
 
 
 def _one_session(cfg, name: str):  # type: ignore[no-untyped-def]
@@ -188,14 +189,6 @@ PARENT = textwrap.dedent(
 )
 
 
-def _gone(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] in ("Z", "X")
-    except FileNotFoundError:
-        return True
-
-
 @pytest.mark.realtime  # a session over the emulated drive's pty: alone, after the parallel rooms
 def test_parent_death_zeroes_the_torque_and_ends_the_worker():
     with EmulatorProcess(EmulatorConfig()) as emu:
@@ -212,7 +205,7 @@ def test_parent_death_zeroes_the_torque_and_ends_the_worker():
             killed_at = time.monotonic()
             os.kill(parent.pid, signal.SIGKILL)
             parent.wait(10)
-            assert wait_for(lambda: _gone(worker_pid), timeout=5.0)
+            assert wait_for(lambda: exited(worker_pid), timeout=5.0)
             snap = emu.snapshot()
             assert snap.applied_torque == 0.0 and snap.input_torque == 0.0
             assert snap.current_state == 1

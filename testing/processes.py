@@ -1,0 +1,31 @@
+"""What ``/proc`` says of a process, for tests that wait for one to end."""
+
+from __future__ import annotations
+
+import os
+
+
+def state(pid: int) -> str | None:
+    """The process's state letter (R, S, D, Z, X, …), None once it is gone. (The name in
+    parentheses may hold spaces or parentheses: the fields after the last ``)`` are read.)"""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+
+
+def exited(pid: int, *, threads: bool = False) -> bool:
+    """Gone, or a zombie its parent has not reaped yet; with ``threads``, also none of its
+    threads left (a zombie leader's other threads may still hold its pipes and devices)."""
+    s = state(pid)
+    if s is None:
+        return True
+    if s not in ("Z", "X"):
+        return False
+    if not threads:
+        return True
+    try:
+        return len(os.listdir(f"/proc/{pid}/task")) <= 1
+    except FileNotFoundError:
+        return True
