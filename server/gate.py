@@ -115,7 +115,7 @@ def _reply(status: int, reason: str, body: dict[str, Any]) -> bytes:
 
 class Gate:
     def __init__(self, listener: socket.socket, link: socket.socket, cfg: GateConfig) -> None:
-        # The login tokens only (not the whole Store: no Alembic, NumPy or password checks to
+        # The login tokens only (not the whole Store: no Alembic, recorder or password checks to
         # import); the web process migrated the database before it started the gate.
         from sessions.store.database import Database, database_url
         from sessions.store.tokens import TokenRepository, digest

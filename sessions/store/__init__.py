@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 
 # Each name from the module that defines it, imported on first use (PEP 562): a process that
 # needs one part (the e-stop gate: the login tokens; the settings: the SQLite file's name)
-# does not import the rest (Alembic, NumPy, the password checks).
+# does not import the rest (Alembic, the recorder, the password checks).
 _WHERE = {
     "DATA_DIR_ENV": "sessions.store.database",
     "DATABASE_URL_ENV": "sessions.store.database",
