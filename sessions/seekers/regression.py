@@ -18,9 +18,11 @@ fluctuation did to it: wd + ē, the commanded velocity plus the tracking error a
 up before the controller brings it back, so the raw w and the power's noise move together,
 and a regression on the raw w reads that as a slope (an errors-in-variables bias: with 5 %
 noise and a ±4 % dither it moves the fitted top by ~8 %). wd is exogenous (the seeker sets
-it); ē, averaged far beyond the noise's correlation time and the stroke's period (the
-ripple moves the handle too), keeps the abscissa unbiased by a
-lasting tracking error (the bias of the paper's (13)).
+it); ē keeps the abscissa unbiased by a lasting tracking error (the bias of the paper's
+(13)). One second is far beyond the noise's correlation time, but shorter than a stroke
+below 6.3 rad/s. So part of the handle's speed change within a stroke (the ripple moves it
+too) stays in ē, in step with the power's ripple, and biases the slope off the top
+(docs/benchmarks.md, "The ripple moves the handle").
 
 Uncertainty: the residuals of neighbouring blocks are correlated (band-limited noise); the
 covariance is inflated by the AR(1) factor (1 + r₁)/(1 - r₁) of the residuals' lag-one
