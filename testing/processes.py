@@ -29,3 +29,23 @@ def exited(pid: int, *, threads: bool = False) -> bool:
         return len(os.listdir(f"/proc/{pid}/task")) <= 1
     except FileNotFoundError:
         return True
+
+
+def loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh interpreter has in ``sys.modules`` after running
+    ``imports`` (Python source) from the project's root: what an import drags in."""
+    import subprocess
+    import sys
+
+    from testing.cli import ROOT
+
+    probe = f"{imports}\nimport sys\nprint(' '.join(m for m in {modules!r} if m in sys.modules))"
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    )
+    return out.stdout.split()

@@ -106,16 +106,11 @@ def test_a_server_start_and_a_worker_load_no_plotting_or_fitting_library() -> No
     replaced): matplotlib (the PDF report) and scipy's fitting and statistics (the profile fit)
     load where they are used, not at import (measured: 4.0 → 2.2 CPU-s for ``server.app``,
     1.9 → 0.5 for the worker)."""
-    import subprocess
-    import sys
+    from testing.processes import loaded_after
 
     heavy = ("matplotlib", "scipy.optimize", "scipy.stats")
     for module in ("server.app", "sessions.worker.process", "server.cli"):
-        code = f"import sys, {module}; print(' '.join(m for m in {heavy!r} if m in sys.modules))"
-        out = subprocess.run(
-            [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
-        )
-        assert out.stdout.strip() == "", f"importing {module} loads {out.stdout.strip()}"
+        assert loaded_after(f"import {module}", heavy) == [], f"importing {module}"
 
 
 def test_the_mutation_targets_name_tests_that_exist() -> None:

@@ -5,13 +5,11 @@ settings does not import Alembic, the recorder or the password checks."""
 from __future__ import annotations
 
 import importlib
-import subprocess
-import sys
 
 import pytest
 
 from sessions import store
-from testing.cli import ROOT
+from testing.processes import loaded_after
 
 
 def test_every_exported_name_is_its_modules_own() -> None:
@@ -32,8 +30,4 @@ def test_every_exported_name_is_its_modules_own() -> None:
 )
 def test_the_gates_and_the_settings_imports_stay_small(imports: str) -> None:
     heavy = ("alembic", "zxcvbn", "sessions.store.store", "sessions.store.recorder")
-    probe = f"{imports}\nimport sys\nprint(sorted(m for m in {heavy!r} if m in sys.modules))"
-    out = subprocess.run(
-        [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True
-    )
-    assert out.stdout.strip() == "[]", out.stdout
+    assert loaded_after(imports, heavy) == []
