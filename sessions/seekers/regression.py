@@ -131,6 +131,7 @@ class Fit:
     n: int
     w_lo: float
     w_hi: float
+    bend: float = 0.0  # with ``bend``: the |t| of the level's curvature in time (τ²)
 
     def value(self, w: float) -> float:
         x = (w - self.center) / self.scale
@@ -312,6 +313,7 @@ def _design(
     powers: int,
     drift: bool,
     moving: bool,
+    bend: bool = False,
 ) -> _Design:
     n = len(rows)
     x = (rows[:, W] - center) / scale
@@ -329,8 +331,10 @@ def _design(
             tau = (tt - tt.mean()) / span
             tau_end = float(tau[-1])
             extra.append(tau)
+            if bend:
+                extra.append(tau * tau)  # a level whose trend curves (fatigue is exponential)
             if moving:
-                extra.append(x * tau)  # the slope changes in time: the top moves
+                extra.append(x * tau)  # the slope changes in time: the top moves (last)
     return _Design(x, y, base, extra, c_fixed, tau_end)
 
 
@@ -391,6 +395,7 @@ def fit(
     misfit_test: bool = False,
     powers: int = 0,
     moving: bool = False,
+    bend: bool = False,
 ) -> Fit | None:
     """The model above over ``rows``. ``curvature`` (d²p/dw²) fixes c₂ instead of fitting
     it; ``prior`` = (d²p/dw², its standard error) pulls c₂ towards a value the rows cannot
@@ -398,12 +403,14 @@ def fit(
     changing in time (fatigue), ``moving`` also a slope changing in time (x·τ: the top
     moving), and ``Fit.now`` is then the vertex at the last row's time; ``misfit_test`` also
     fits x³ and x⁴ and reports how significant they are (a lack-of-fit test: the parabola
-    is no good this wide), the parabola's coefficients still from the quadratic alone. None
-    when the rows cannot determine the model."""
+    is no good this wide), the parabola's coefficients still from the quadratic alone;
+    ``bend`` (with ``drift`` or ``moving``) adds a level curving in time (τ²) and reports
+    the |t| of its coefficient in ``Fit.bend``. None when the rows cannot determine the
+    model."""
     misfit = 0.0
     if misfit_test:
         misfit = _misfit(rows, center, scale, drift=drift, weights=weights, ripple=ripple)
-    d = _design(rows, center, scale, curvature, powers, drift, moving)
+    d = _design(rows, center, scale, curvature, powers, drift, moving, bend)
     k = len(d.base) + len(d.extra) + (4 if ripple else 0)
     if len(rows) < k + 3 or float(np.ptp(d.x)) <= 0.0:
         return None
@@ -423,8 +430,11 @@ def fit(
         return None
     rip = tuple(float(v) for v in coef[ncols - 4 : ncols]) if ripple else (0.0, 0.0, 0.0, 0.0)
     now = None
-    if moving and len(d.extra) == 2:
-        j = len(d.base) + len(d.extra) - 1
+    bend_t = 0.0
+    if bend and len(d.extra) >= 2:
+        bend_t = _t_max(coef, cov_full, len(d.base) + 1, len(d.base) + 2)
+    if moving and len(d.extra) >= 2:
+        j = len(d.base) + len(d.extra) - 1  # x·τ: the last of the time terms
         now = _vertex_now(coef, cov_full, center, scale, j, d.tau_end, d.c_fixed)
     w = rows[:, W]
     return Fit(
@@ -436,6 +446,7 @@ def fit(
         sigma=math.sqrt(max(s2, 0.0)),
         inflate=inflate,
         misfit=misfit if not powers else _t_max(coef, cov_full, 3, 3 + powers),
+        bend=bend_t,
         now=now,
         n=len(rows),
         w_lo=float(w.min()),

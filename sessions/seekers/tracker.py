@@ -17,7 +17,10 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   track phase began near θ (three dither amplitudes, 8-30 % of θ), weighted by
   exp(−age/``track_memory``), with the ripple and a drift in time regressed out and the
   curvature held near the search's (a ridge), else the generic −2p/θ² of a top where ±10 %
-  in w costs 1 % in p;
+  in w costs 1 % in p. The drift may curve (τ², kept where its t reaches K_BEND): fatigue
+  lowers the level exponentially, by far more than a small dither moves the power, and a
+  curved trend fitted as a line leaks into the slope (a clean person tiring 33 % in two
+  minutes walked θ 9 % off a w* that never moved);
 - the model's slope may change in time (an x·τ term): its vertex at the latest row is the
   optimum *now*, so a drifting optimum is followed without the window's lag;
 - that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
@@ -61,6 +64,7 @@ DITHER_COST = 0.003
 PRECISION = 0.02
 MIN_DITHER = 0.008
 K_SLOPE = 2.5  # standard errors of the slope at θ that reject θ as the optimum
+K_BEND = 3.0  # standard errors of the level's curvature in time that keep it in the model
 PRECISE_STEP = 0.05  # a Newton step is taken whole when its vertex is known to this of θ
 
 
@@ -218,9 +222,14 @@ class Tracker:
         sharp = 0.5 * -prior * theta**2 / level
         prior *= min(max(sharp, 0.1), MAX_SHARPNESS) / max(sharp, 1e-12)
         wts = np.exp(-(t - d[:, T]) / self.memory)
-        if fixed:
-            return fit(d, theta, half * theta, curvature=prior, moving=True, weights=wts)
-        return fit(d, theta, half * theta, prior=(prior, 0.5 * -prior), moving=True, weights=wts)
+        shape = {"curvature": prior} if fixed else {"prior": (prior, 0.5 * -prior)}
+        # the level's trend curving in time (fatigue), kept only where the rows show it: a
+        # curved trend the model misses leaks into the slope (a dither changes the power by
+        # far less than fatigue does), a term the rows cannot see only adds variance
+        f = fit(d, theta, half * theta, moving=True, weights=wts, bend=True, **shape)
+        if f is not None and f.bend >= K_BEND:
+            return f
+        return fit(d, theta, half * theta, moving=True, weights=wts, **shape)
 
     def _filter(self, v: float, se: float, dt: float) -> None:
         """Kalman filter on the optimum: a random walk of WANDER·θ per √s, measured by the

@@ -205,6 +205,31 @@ def test_the_abscissa_ignores_the_persons_own_fluctuation() -> None:
     assert raw_slope > 5 * raw_se and raw_slope > 0.5  # the bias the rows avoid
 
 
+def test_a_level_curving_in_time_stays_out_of_the_slope() -> None:
+    # The tracker's model around θ = 3: a 3 % dither for 60 s on p = L(t)·(8 − 0.8 (w − 3.1)²)
+    # with L(t) = exp(−t/200), a strength that fatigues. The level falls 26 % while the
+    # dither moves the power by ~0.3 %: a linear trend in time leaves the trend's curvature
+    # in the residual, and what of it lines up with the dither reads as slope (the vertex
+    # now 0.04 off, 14× the τ² model's error). With τ² the vertex now is w* within 0.3 %,
+    # and the term's t says the rows need it.
+    dt = 1e-3
+    t = np.arange(60_000) * dt
+    w = 3.0 + 0.09 * np.sin(2 * math.pi * t / 6.0)
+    q = np.cumsum(w) * dt
+    p = np.exp(-t / 200.0) * (8.0 - 0.8 * (w - 3.1) ** 2)
+    rows = Rows(dt)
+    for k in range(len(t)):
+        rows.add(float(t[k]), float(q[k]), float(p[k]), float(w[k]), float(w[k]))
+    d = rows.view()
+    wts = np.exp(-(t[-1] - d[:, 0]) / 20.0)
+    kw = {"prior": (-0.6, 0.3), "moving": True, "weights": wts}
+    bent, straight = fit(d, 3.0, 0.27, bend=True, **kw), fit(d, 3.0, 0.27, **kw)
+    assert bent is not None and bent.now is not None and bent.bend > 10.0
+    assert straight is not None and straight.now is not None and straight.bend == 0.0
+    assert bent.now[0] == pytest.approx(3.1, abs=0.01)
+    assert abs(straight.now[0] - 3.1) > 3.0 * abs(bent.now[0] - 3.1)
+
+
 def skewed_top(w: np.ndarray, w_star: float, s_lo: float, s_hi: float) -> np.ndarray:
     """p = 10·exp(−x²/(2s²)) on x = ln(w/w*), s = s_lo below w*, s_hi above: the skewed tops
     of the benchmark's population; its 99 % band is w*·exp(±s·√0.02)."""

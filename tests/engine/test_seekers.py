@@ -259,6 +259,33 @@ def test_tracking_costs_a_steady_user_under_1pct_of_power() -> None:
     assert on >= off - 0.01
 
 
+def test_the_tracker_holds_the_optimum_of_a_person_who_tires() -> None:
+    # Torque fatigue scales the power and never moves w*: a clean Hill person whose
+    # strength falls 33 % in 120 s. The level's exponential trend, fitted as a line in time,
+    # leaked into the slope the 0.8 % dither shows: θ walked away from w*, +1.5 % at 30 s and
+    # +9 % at the end, each refit's vertex "known" to 0.1 %. The trend's curvature in the
+    # model holds θ within 0.2 % from 30 s on.
+    from sessions.simulation import run_simulation
+
+    cfg = parse_session_config(
+        {
+            "duration": 120.0,
+            "seed": 3,
+            "user": {"kind": "hill", "tau0": 8.0, "wmax": 12.0, "curvature": 0.3,
+                     "noise": 0.0, "ripple": 0.0, "fatigue_tau": 300.0},
+            "seeker": {"kind": "sweep", "bracket": [1.0, 2.5, 6.0]},
+        }
+    )  # fmt: skip
+    r = run_simulation(cfg)
+    sm, w_star = r.summary, r.user.w_star()
+    assert sm is not None and sm.t_converged is not None
+    assert r.user.w_star(t=120.0) == pytest.approx(w_star)  # w* does not move
+    assert sm.t_converged < 20.0
+    tracked = [ev.candidate for ev in r.evaluations if ev.t >= 30.0]
+    assert len(tracked) > 80
+    assert max(abs(v / w_star - 1.0) for v in tracked) <= 0.01
+
+
 def log_top_table(w_star: float, p_star: float, s: float, beta: float) -> list[list[float]]:
     """A measured-looking curve [w, τ] whose power on a log axis x = ln(w/w*) is
     p*·exp(−|x/s|^β/β): its maximum p* at w* exactly (β = 4: flat-topped; β = 2 with a
@@ -366,6 +393,37 @@ def test_a_refine_pass_entering_its_span_never_aims_past_its_far_end() -> None:
         wds.append(seeker.wd)
     assert max(targets) <= 2.8 + 1e-12
     assert max(wds) <= 2.8 + 1e-9 and wds[-1] > 2.75  # and wd gets there
+
+
+def test_a_side_a_trailing_line_saw_fall_needs_no_second_proof() -> None:
+    # The top fit p = 10 − 4 (w − 3)² over 2.4-3.6 with its vertex inside: the power at the
+    # lower end is 14 % below the top at 7.2 standard errors, at the upper end 14 % at only
+    # 1.8 (a fast leg crossed it: few rows there). The trailing line had already seen the
+    # power fall above (the leg reversed there), so the top is bracketed; the search once
+    # asked the quadratic to show that fall again and ran the leg on down the lower flank
+    # (a Hill top: to 0.41 w*, converged 4 s later) before its first refine pass.
+    from sessions.seekers.regression import Fit, Rows
+
+    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 4.0, 6.0]}}).seeker
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    rows = Rows(0.02, block=0.02)
+    for k, w in enumerate(np.linspace(2.4, 3.6, 120)):
+        rows.add(0.02 * k, 0.0, 10.0 - 4.0 * (w - 3.0) ** 2, float(w), float(w))
+    seeker.rows, seeker.gate_t = rows, 0.0
+    cov = np.array([[0.01, 0.0, 0.0], [0.0, 0.543, 0.507], [0.0, 0.507, 0.5]])
+    top = Fit(center=3.0, scale=0.9, coef=np.array([10.0, 0.0, -3.24]), cov=cov,
+              ripple=(0.0,) * 4, sigma=0.1, inflate=1.0, misfit=0.0, now=None, n=120,
+              w_lo=2.4, w_hi=3.6)  # fmt: skip
+    for end, z in ((2.4, 7.2), (3.6, 1.8)):
+        drop, se = top.drop(3.0, end)
+        assert drop / top.value(3.0) == pytest.approx(0.144, abs=1e-3)
+        assert drop / se == pytest.approx(z, abs=0.05)
+    seeker.dropped = set()
+    assert not seeker._bracketed(top)  # the quadratic alone does not see the upper fall
+    seeker.dropped = {"upper"}
+    assert seeker._bracketed(top)
+    seeker.dropped = {"lower"}  # a side seen is no evidence for the other
+    assert not seeker._bracketed(top)
 
 
 def _tracked_rows(slope: float, sigma: float, seed: int) -> tuple[object, float]:
