@@ -31,12 +31,13 @@ RATE = 500.0  # Hz: the rate the pty link holds on a loaded VM (docs/live-machin
 DT = 1.0 / RATE
 
 
-def _paused_session(pause: float, duration: float = 3.0):
+def _paused_session(pause: float, catch_up_max: float = 0.1, duration: float = 3.0):
     cfg = scenario(duration=duration, rate=RATE)
     with EmulatorProcess(EmulatorConfig.from_session(cfg)) as emu:
         spec = odrive(emu.path, reply_timeout=0.2, watchdog_timeout=0.5)
         # the pause must not look like a hung worker (100 ms) to the parent
-        with Worker(spec, WorkerOptions(heartbeat_timeout=1.5)) as worker:
+        opt = WorkerOptions(heartbeat_timeout=1.5, catch_up_max=catch_up_max)
+        with Worker(spec, opt) as worker:
             worker.start()
             reader = worker.open_reader()
             worker.start_session(cfg, "paused")
@@ -56,7 +57,10 @@ def _paused_session(pause: float, duration: float = 3.0):
 
 
 def test_a_paused_worker_catches_up_and_keeps_the_plants_time():
-    got, paused, _ = _paused_session(0.06)
+    # a 60 ms pause against a 400 ms bound: a loaded host resumes the worker late (the
+    # external CI saw 125 ms of stall for this 60 ms pause), and the bound is not what is
+    # tested here; the next test holds it
+    got, paused, _ = _paused_session(0.06, catch_up_max=0.4)
     end = got.end
     assert end is not None and end.status == "completed", end
     d = got.data
