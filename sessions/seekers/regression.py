@@ -14,15 +14,16 @@ passes), first and second harmonic (one and two pushes per revolution).
 
 The abscissa w of a row is where the power was produced, without what the person's own
 fluctuation did to it: wd + ē, the commanded velocity plus the tracking error averaged over
-``E_SMOOTH`` (1 s). Not the raw w: a person pushing harder for a moment speeds the handle
-up before the controller brings it back, so the raw w and the power's noise move together,
-and a regression on the raw w reads that as a slope (an errors-in-variables bias: with 5 %
-noise and a ±4 % dither it moves the fitted top by ~8 %). wd is exogenous (the seeker sets
-it); ē keeps the abscissa unbiased by a lasting tracking error (the bias of the paper's
-(13)). One second is far beyond the noise's correlation time, but shorter than a stroke
-below 6.3 rad/s. So part of the handle's speed change within a stroke (the ripple moves it
-too) stays in ē, in step with the power's ripple, and biases the slope off the top
-(docs/benchmarks.md, "The ripple moves the handle").
+``E_SMOOTH`` (1 s; the tracker, whose dither moves wd far less than a search does, sets a
+longer one with :meth:`Rows.smooth`). Not the raw w: a person pushing harder for a moment
+speeds the handle up before the controller brings it back, so the raw w and the power's
+noise move together, and a regression on the raw w reads that as a slope (an
+errors-in-variables bias: with 5 % noise and a ±4 % dither it moves the fitted top by ~8 %).
+wd is exogenous (the seeker sets it); ē keeps the abscissa unbiased by a lasting tracking
+error (the bias of the paper's (13)). One second is far beyond the noise's correlation time,
+but shorter than a stroke below 6.3 rad/s. So part of the handle's speed change within a
+stroke (the ripple moves it too) stays in ē, in step with the power's ripple, and biases the
+slope off the top (docs/benchmarks.md, "The ripple moves the handle").
 
 Uncertainty: the residuals of neighbouring blocks are correlated (band-limited noise); the
 covariance is inflated by the AR(1) factor (1 + r₁)/(1 - r₁) of the residuals' lag-one
@@ -48,18 +49,25 @@ class Rows:
     """Block means of the sample stream, the newest ``capacity`` blocks kept."""
 
     __slots__ = (
-        "n_block", "capacity", "data", "size", "alpha", "e_mean", "_st", "_sq", "_sp",
-        "_sw", "_sd", "_k",
+        "n_block", "block_s", "capacity", "data", "size", "alpha", "e_mean", "_st", "_sq",
+        "_sp", "_sw", "_sd", "_k",
     )  # fmt: skip
 
     def __init__(self, dt: float, block: float = 0.02, capacity: int = 8192) -> None:
         self.n_block = max(1, round(block / dt))
+        self.block_s = self.n_block * dt
         self.capacity = capacity
         self.data = np.zeros((2 * capacity, len(COLUMNS)))
         self.size = 0
-        self.alpha = min(1.0, self.n_block * dt / E_SMOOTH)
+        self.alpha = 1.0
+        self.smooth(E_SMOOTH)
         self.e_mean = math.nan
         self.clear_block()
+
+    def smooth(self, seconds: float) -> None:
+        """Average the tracking error in the abscissa over ``seconds`` from the next row on
+        (an exponential moving average of that time constant)."""
+        self.alpha = min(1.0, self.block_s / seconds)
 
     def clear_block(self) -> None:
         self._st = self._sq = self._sp = self._sw = self._sd = 0.0
