@@ -37,6 +37,7 @@ evaluations. A plan reads like the algorithm it implements. Once the plan has co
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
@@ -183,7 +184,8 @@ class Seeker:
         g = np.array([ev.candidate for ev in near])
         p = np.array([ev.power for ev in near])
         se = np.array([ev.stderr if 0 < ev.stderr < math.inf else math.nan for ev in near])
-        floor = float(np.nanmedian(se)) if np.isfinite(se).any() else 0.0
+        known = [ev.stderr for ev in near if 0 < ev.stderr < math.inf]  # (not np.nanmedian:
+        floor = statistics.median(known) if known else 0.0  # it imports numpy.ma mid-loop)
         if floor <= 0.0:
             floor = max(1e-3 * float(np.abs(p).max()), 1e-12)
         se = np.where(np.isfinite(se), np.maximum(se, 0.5 * floor), floor)

@@ -14,6 +14,7 @@ velocity terms (condition number of the scaled design below 100).
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Sequence
 
 import numpy as np
@@ -36,7 +37,9 @@ def _quadratic(evs: Sequence[Evaluation], lo: float, hi: float) -> tuple[float, 
     p = np.array([ev.power for ev in pts])
     t = np.array([ev.t for ev in pts])
     se = np.array([ev.stderr if 0 < ev.stderr < math.inf else np.nan for ev in pts])
-    floor = np.nanmedian(se) if np.isfinite(se).any() else 1.0
+    # statistics, not np.nanmedian: that loads numpy.ma on first use, a stall in the loop
+    known = [ev.stderr for ev in pts if 0 < ev.stderr < math.inf]
+    floor = statistics.median(known) if known else 1.0
     se = np.where(np.isfinite(se), np.maximum(se, 0.25 * floor), floor)
     wts = 1.0 / se
     gs, ts = g.std() or 1.0, t.std() or 1.0
