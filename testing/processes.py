@@ -31,21 +31,26 @@ def exited(pid: int, *, threads: bool = False) -> bool:
         return True
 
 
-def loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
-    """Which of ``modules`` a fresh interpreter has in ``sys.modules`` after running
-    ``imports`` (Python source) from the project's root: what an import drags in."""
+def python_output(source: str, timeout: float = 60.0) -> str:
+    """What a fresh interpreter prints running ``source`` from the project's root."""
     import subprocess
     import sys
 
     from testing.cli import ROOT
 
-    probe = f"{imports}\nimport sys\nprint(' '.join(m for m in {modules!r} if m in sys.modules))"
     out = subprocess.run(
-        [sys.executable, "-c", probe],
+        [sys.executable, "-c", source],
         cwd=ROOT,
         capture_output=True,
         text=True,
         check=True,
-        timeout=60,
+        timeout=timeout,
     )
-    return out.stdout.split()
+    return out.stdout
+
+
+def loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh interpreter has in ``sys.modules`` after running
+    ``imports`` (Python source) from the project's root: what an import drags in."""
+    probe = f"{imports}\nimport sys\nprint(' '.join(m for m in {modules!r} if m in sys.modules))"
+    return python_output(probe).split()

@@ -59,7 +59,6 @@ class Rows:
         self.capacity = capacity
         self.data = np.zeros((2 * capacity, len(COLUMNS)))
         self.size = 0
-        self.alpha = 1.0
         self.smooth(E_SMOOTH)
         self.e_mean = math.nan
         self.clear_block()

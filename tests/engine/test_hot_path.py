@@ -6,10 +6,8 @@ keeps turning is a stall past ``catch_up_max``, and the session aborted.)"""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
-from testing.cli import ROOT
+from testing.processes import python_output
 
 PROBE = """
 import json, sys
@@ -26,12 +24,4 @@ print(json.dumps(sorted(set(sys.modules) - before)))
 
 
 def test_no_seeker_imports_a_module_during_a_session() -> None:
-    out = subprocess.run(
-        [sys.executable, "-c", PROBE],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=240,
-    )
-    assert json.loads(out.stdout) == []
+    assert json.loads(python_output(PROBE, timeout=240)) == []
