@@ -35,7 +35,6 @@ import re
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -690,12 +689,6 @@ def redact_hosts(text: str) -> str:
     """``scheme://<host>/path`` for every URL in ``text``, and ``host='<host>'`` (urllib3)."""
     text = re.sub(r"\b([a-z][a-z0-9+.-]*://)[^/\s'\"]+", r"\1<host>", text)
     return re.sub(r"\bhost=(['\"])[^'\"]*\1", "host='<host>'", text)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def prepare() -> dict[str, object]:

@@ -1,8 +1,9 @@
-"""What ``/proc`` says of a process, for tests that wait for one to end."""
+"""What ``/proc`` says of a process (for tests that wait for one to end), and a free port."""
 
 from __future__ import annotations
 
 import os
+import socket
 
 
 def state(pid: int) -> str | None:
@@ -54,3 +55,10 @@ def loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
     ``imports`` (Python source) from the project's root: what an import drags in."""
     probe = f"{imports}\nimport sys\nprint(' '.join(m for m in {modules!r} if m in sys.modules))"
     return python_output(probe).split()
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on (the kernel's pick, released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -28,6 +27,7 @@ import httpx
 from sessions.store import open_store
 from sessions.store.database import SQLITE_FILENAME
 from sessions.store.hashing import OWASP_MIN_MEMORY_KIB, OWASP_MIN_TIME_COST, HashCost
+from testing.processes import free_port
 
 # The tests' servers hash passwords at the least cost the server accepts (OWASP's minimum for
 # argon2id, one lane): a sixth of the default's CPU per login, which the suite does ~300
@@ -37,12 +37,6 @@ TEST_HASH_COST = HashCost(
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def cpu_seconds(pid: int) -> float:

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import re
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from typing import Any
 
-import numpy as np
 from pydantic import BaseModel, ValidationError
 
 from sessions.config import SessionConfig
@@ -65,7 +65,7 @@ def number(
     le: float | None = None,
 ) -> float:
     """A finite float within the given bounds."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise StoreValueError(field, f"must be a number, got {type(value).__name__}")
     x = float(value)
     if not math.isfinite(x):

@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 
 from testing import docker as ds
+from testing.processes import free_port
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +89,7 @@ def demo(engine: ds.Engine, image: str) -> Iterator[Demo]:
     """The image run as the README's `docker run` (a named /data volume); the container and
     its volume removed afterwards, failed or not."""
     name = f"ergoseek-smoke-{os.getpid()}"
-    d = Demo(engine, image, name, ds.free_port(), secrets.token_urlsafe(18))
+    d = Demo(engine, image, name, free_port(), secrets.token_urlsafe(18))
     d.remove()
     engine.docker("volume", "rm", "--force", d.volume, check=False, timeout=60)
     d.run()
