@@ -484,8 +484,12 @@ class Worker:
         hb = self._ring.header(H_HEARTBEAT)
         age = (time.monotonic_ns() - hb) * 1e-9
         if age > self.options.heartbeat_timeout:
+            late = self._drain()  # a goodbye sent since the last drain is not a hang
+            if self._exited is not None:
+                return late + self._exiting(proc)
             self._kill()
-            return self._lost(f"worker unresponsive: no heartbeat for {age * 1e3:.0f} ms", None)
+            why = f"worker unresponsive: no heartbeat for {age * 1e3:.0f} ms"
+            return late + self._lost(why, None)
         return []
 
     def _exiting(self, proc: Any) -> list[Event]:

@@ -139,13 +139,15 @@ class WorkerProcess:
             self.state = STATE_FAULTED
         self.beat()
         self.emit(WorkerReady(time.monotonic(), os.getpid(), self.spec.kind, rt, self.fault))
+        failure: BaseException | None = None
         try:
             self.idle_loop()
         except BaseException as exc:  # never leave without zeroing the torque
+            failure = exc
             self.exit_reason = f"internal error: {type(exc).__name__}: {exc}"
-            traceback.print_exc(file=sys.stderr)
         finally:
             self.machine.zero()
+            self.beat()  # alive, and going: the heartbeat's timeout spans only the close
             self.machine.close()
             self.state = STATE_CLOSED
             self.beat()
@@ -154,6 +156,8 @@ class WorkerProcess:
             while self.events.pending and time.monotonic() < deadline and self.parent_alive():
                 self.events.flush()
                 time.sleep(0.001)
+            if failure is not None:  # after the goodbye: formatting a traceback takes ms
+                traceback.print_exception(failure, file=sys.stderr)
             self.ring.close()
 
     def idle_loop(self) -> None:

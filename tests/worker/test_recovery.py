@@ -21,7 +21,10 @@ from testing.processes import exited
 
 
 def _faulty_worker(kind: str, at: float = 0.5) -> Worker:
-    worker = Worker(MachineSpec(kind="sim", sim_fault=SimFault(kind=kind, at=at)), WorkerOptions())
+    # which death it was, not the watchdog (tests/worker/test_liveness.py): a worker starved of
+    # the CPU for the default 0.1 s between its fault and its goodbye would read as a hang
+    options = WorkerOptions(heartbeat_timeout=2.0)
+    worker = Worker(MachineSpec(kind="sim", sim_fault=SimFault(kind=kind, at=at)), options)
     worker.start()
     return worker
 
