@@ -104,12 +104,22 @@ def chromium(nice: int = 0) -> Iterator[Browser]:
 
 
 def login(page: Page, base: str, name: str, password: str, timeout: float = 60.0) -> None:
-    """Sign in on ``/`` and wait for the dashboard to be connected (its tabs are there)."""
+    """Sign in on ``/`` and wait for the dashboard to be connected (its tabs are there). A
+    login that does not go on says what the page said (an AssertionError)."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     page.goto(base + "/")
     page.get_by_label("Login").fill(name)
     page.get_by_label("Password").fill(password)
     page.get_by_role("button", name="Sign in").click()
-    page.wait_for_url(base + "/dashboard/", timeout=timeout * 1e3)
+    try:  # the login answered and the browser went on (the dashboard's load is the next wait)
+        page.wait_for_url(base + "/dashboard/", wait_until="commit", timeout=timeout * 1e3)
+    except PlaywrightTimeout:
+        said = page.locator("#error").text_content(timeout=5e3)
+        raise AssertionError(
+            f"signing in as {name!r} did not reach the dashboard in {timeout:g} s: "
+            f"still at {page.url}, the page says {said!r}"
+        ) from None
     page.get_by_role("tab", name="Live", exact=True).wait_for(timeout=timeout * 1e3)
 
 

@@ -272,6 +272,15 @@ def test_the_page_talks_to_this_server_only(server: DemoServer, browser: Any) ->
         context.close()
 
 
+def test_a_refused_login_says_why_instead_of_timing_out(server: DemoServer, browser: Any) -> None:
+    ctx = browser.new_context(viewport=VIEWPORT)
+    try:
+        with pytest.raises(AssertionError, match=r"'nobody'.*/.*Wrong login or password"):
+            login(ctx.new_page(), server.url, "nobody", VIEWER_PASSWORD, timeout=5.0)
+    finally:
+        ctx.close()
+
+
 def test_a_viewer_gets_the_dashboard_without_controls(server: DemoServer, browser: Any) -> None:
     viewer_ctx = browser.new_context(viewport=VIEWPORT)
     viewer = viewer_ctx.new_page()
