@@ -103,9 +103,17 @@ def chromium(nice: int = 0) -> Iterator[Browser]:
             browser.close()
 
 
-def login(page: Page, base: str, name: str, password: str, timeout: float = 60.0) -> None:
-    """Sign in on ``/`` and wait for the dashboard to be connected (its tabs are there). A
-    login that does not go on says what the page said (an AssertionError)."""
+def login(
+    page: Page,
+    base: str,
+    name: str,
+    password: str,
+    timeout: float = 60.0,
+    ready: tuple[str, str] = ("tab", "Live"),
+) -> None:
+    """Sign in on ``/`` and wait for the dashboard to be connected: the element of ``ready``
+    (its ARIA role and name; the Live tab, which a phone's layout keeps folded away) is
+    there. A login that does not go on says what the page said (an AssertionError)."""
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     page.goto(base + "/")
@@ -120,7 +128,9 @@ def login(page: Page, base: str, name: str, password: str, timeout: float = 60.0
             f"signing in as {name!r} did not reach the dashboard in {timeout:g} s: "
             f"still at {page.url}, the page says {said!r}"
         ) from None
-    page.get_by_role("tab", name="Live", exact=True).wait_for(timeout=timeout * 1e3)
+    role, label = ready
+    found = page.get_by_role(role, name=label, exact=True)  # type: ignore[arg-type]
+    found.wait_for(timeout=timeout * 1e3)
 
 
 def text_field(page: Page, label: str) -> Locator:

@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from testing.browser import TRAINER, UI_TIMEOUT, DemoServer
+from testing.browser import TRAINER, UI_TIMEOUT, DemoServer, login
 from testing.screenshot import DEFAULT_OUT, dismiss_notifications
 from webui import layout
 
@@ -98,12 +98,7 @@ def running(server: DemoServer) -> Iterator[int]:
 
 def open_dashboard(browser: Any, server: DemoServer, width: int, height: int) -> Any:
     page = browser.new_page(viewport={"width": width, "height": height})
-    page.goto(server.url + "/")
-    page.get_by_label("Login").fill(TRAINER)
-    page.get_by_label("Password").fill(server.password)
-    page.get_by_role("button", name="Sign in").click()
-    page.wait_for_url(server.url + "/dashboard/", timeout=UI_TIMEOUT * 2)
-    page.get_by_role("button", name="E-STOP", exact=True).wait_for(timeout=UI_TIMEOUT * 2)
+    login(page, server.url, TRAINER, server.password, UI_TIMEOUT * 2e-3, ("button", "E-STOP"))
     return page
 
 
