@@ -4,15 +4,23 @@ A person's optimum drifts during a session (fatigue lowers the maximal shortenin
 the optimal cadence of cycling rises with effort). Once a numerical seeker has converged on
 θ, the tracker keeps θ there at a bounded cost and moves it when the power says so:
 
-- a slow dither on the candidate, γ = θ + A sin(ω t) (period ``dither_period``, ramped in
-  over one period and clipped to the bracket): it spreads w around θ so that the local slope
-  of p(w) can be seen. A is as small as the noise allows: the amplitude at which the slope
+- a slow dither on the candidate, γ = θ ± SQUARE·A, a square wave of period
+  ``dither_period`` (ramped in over one period and clipped to the bracket; the trajectory
+  filter rounds its corners): it spreads w around θ so that the local slope of p(w) can be
+  seen. A square, not a sine: wd then holds near each extreme for part of every half-period
+  instead of passing through it, so the rows spread more around θ for the same excursion of
+  wd (the person's cost is paid at the excursion, the slope is seen from the spread). Through
+  the default filter, (32) with p = 3 at the 6 s period, a sine of amplitude A moves wd by
+  0.795 A with a variance of half that squared; the square of SQUARE·A (0.8 A) by 0.774 A,
+  with 0.552 of it squared: over ten benchmark populations 27 people reached 99 % of p* for
+  good more than 2 s sooner and 6 later, no median slower (docs/benchmarks.md). A is as
+  small as the noise allows: the amplitude at which the slope
   over ``track_memory`` pins θ down to PRECISION (2 %), from the fit's own residual noise,
   between 0.8 % of θ (less would drown in what the model misses) and ``dither``·θ (5 %),
   and more, in proportion, while the Kalman filter below knows θ worse than PRECISION,
   and never more than loses DITHER_COST (0.3 %) of the power at its extremes on the
-  measured curvature (½|p''|A² ≤ 0.003 p). On average it costs half that, well within the
-  1 % the issue allows;
+  measured curvature (½|p''|A² ≤ 0.003 p; wd's excursion, 0.774 A, costs 0.6 of that). On
+  average it costs about a third of that cap, well within the 1 % the issue allows;
 - every ``REFIT`` seconds, the local model of :mod:`.regression` over the samples since the
   track phase began near θ (three dither amplitudes, 8-30 % of θ), weighted by
   exp(−age/``track_memory``), with the ripple and a drift in time regressed out and the
@@ -27,6 +35,11 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   as it raises the power) is then a good part of the abscissa's spread, in step with the
   power's noise: an errors-in-variables slope that walked θ up (+12 % in 100 s on a sharp
   person with 4 % noise and the 0.8 % dither floor). A lasting tracking error stays in ē;
+- a pause (no samples for PAUSE: a protocol's rest between work intervals) is no part of
+  the person's curve: the rows of the first RESUME seconds after it are left out of the fits.
+  The person's effort comes back from rest within a second, a step in the power far larger
+  than the dither moves it, and lined up with one side of the dither it read as a slope (θ
+  19 % above w* over the first work interval of an interval training);
 - the model's slope may change in time (an x·τ term): its vertex at the latest row is the
   optimum *now*, so a drifting optimum is followed without the window's lag;
 - that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
@@ -71,6 +84,9 @@ PRECISION = 0.02
 MIN_DITHER = 0.008
 K_SLOPE = 2.5  # standard errors of the slope at θ that reject θ as the optimum
 K_BEND = 3.0  # standard errors of the level's curvature in time that keep it in the model
+PAUSE = 0.1  # s without samples: the session paused the tracker (a protocol's rest) …
+RESUME = 2.0  # … and the rows of this long after it came back are left out of the fits
+SQUARE = 0.8  # the square dither's height, fraction of A: wd's excursion a sine's (above)
 PRECISE_STEP = 0.05  # a Newton step is taken whole when its vertex is known to this of θ
 
 
@@ -85,7 +101,7 @@ def smoothstep(x: float) -> float:
 class Tracker:
     __slots__ = (
         "owner", "rows", "theta", "curv", "t0", "amp", "omega", "period", "memory",
-        "next_fit", "last_fit", "level", "noise", "amp_now", "x", "var",
+        "next_fit", "last_fit", "level", "noise", "amp_now", "x", "var", "seen", "resumed",
     )  # fmt: skip
 
     def __init__(
@@ -115,13 +131,16 @@ class Tracker:
         self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
         self.var = (PRECISION * self.theta) ** 2
         self.amp_now = self._wanted()
+        self.seen = t0
+        self.resumed: list[float] = []  # when the samples came back after a pause
         owner.optimum = self.theta
 
     def target(self, t: float) -> float:
         """The candidate at time t: θ with the dither, inside the bounds."""
         x = t - self.t0
         a = self.amplitude() * smoothstep(x / self.period)
-        return self.owner.clamp(self.theta + a * math.sin(self.omega * x))
+        side = math.copysign(1.0, math.sin(self.omega * x))
+        return self.owner.clamp(self.theta + SQUARE * a * side)
 
     def amplitude(self) -> float:
         return self.amp_now
@@ -156,6 +175,9 @@ class Tracker:
 
     def update(self, t: float) -> Evaluation | None:
         """A step towards the fitted vertex when one is due; the evaluation it records."""
+        if t - self.seen > PAUSE:  # a protocol's rest: the person starts again from it
+            self.resumed.append(t)
+        self.seen = t
         if t < self.next_fit:
             return None
         self.next_fit = t + REFIT
@@ -220,6 +242,8 @@ class Tracker:
         half = min(WINDOW, max(3.0 * self.amp_now / theta, NARROW))
         d = self.rows.view(since=max(t - 3.0 * self.memory, self.t0))
         d = d[np.abs(d[:, W] - theta) <= half * theta]
+        for start in self.resumed:  # the person's effort coming back is no slope
+            d = d[(d[:, T] < start) | (d[:, T] >= start + RESUME)]
         if len(d) < MIN_ROWS:
             return None
         level = self.level if self.level is not None and self.level > 0.0 else None

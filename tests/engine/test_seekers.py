@@ -532,3 +532,31 @@ def test_the_tracker_follows_a_flat_hill_top_whose_vertex_is_never_known() -> No
     assert s["power_ratio"] >= 0.98  # where the handle is at the end
     end = r.user.power_ratio(np.array([sm.optimum_w]), np.array([120.0]))[0]
     assert end >= 0.99  # and the optimum stored for the person
+
+
+def test_the_dither_spreads_w_more_than_a_sine_for_the_same_excursion() -> None:
+    # The person pays the dither's cost at wd's excursion from θ; the slope at θ is seen
+    # from how far the rows spread around it. Through the default trajectory filter a sine
+    # of amplitude A moves wd by 0.795 A with a variance of exactly half that squared; the
+    # tracker's square wave (corners rounded by the filter) moves it by no more, and spreads
+    # it more. A full-height square would move wd by 0.967 A: past what the cap was set for.
+    from sessions.filters import TrajectoryFilter
+    from sessions.seekers.regression import Rows
+    from sessions.seekers.tracker import Tracker
+
+    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 3.0, 6.0]}}).seeker
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    seeker.optimum_power = 10.0
+    tracker = Tracker(seeker, 3.0, -10.0, 0.0, Rows(1e-3), noise=(0.5, 2.0))
+    a = tracker.amplitude()
+    assert 0.01 < a < 0.2  # between the floor and the cap: a dither the fit asked for
+    f = TrajectoryFilter(cfg.filter.order, cfg.filter.pole, 1e-3)
+    f.reset(3.0)
+    wd = np.empty(60000)
+    for k in range(len(wd)):
+        f.step(tracker.target(k * 1e-3))
+        wd[k] = f.wd
+    x = wd[30000:] - 3.0  # five whole periods, long after the ramp-in
+    peak = float(np.max(np.abs(x)))
+    assert peak <= 0.8 * a  # no farther than a sine of amplitude a through the filter
+    assert float(np.mean(x * x)) / peak**2 > 0.54  # a sine's: 0.5
