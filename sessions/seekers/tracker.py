@@ -176,7 +176,8 @@ class Tracker:
     def update(self, t: float) -> Evaluation | None:
         """A step towards the fitted vertex when one is due; the evaluation it records."""
         if t - self.seen > PAUSE:  # a protocol's rest: the person starts again from it
-            self.resumed.append(t)
+            oldest = t - 3.0 * self.memory  # what the fits still see (:meth:`_fit`)
+            self.resumed = [s for s in self.resumed if s + RESUME > oldest] + [t]
         self.seen = t
         if t < self.next_fit:
             return None

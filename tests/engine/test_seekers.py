@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from sessions.config import SeekerConfig, parse_session_config
 from sessions.seekers import make_seeker
 from sessions.seekers.parabolic import parabola_vertex, step7
+from sessions.seekers.tracker import Tracker
 
 pos = st.floats(0.2, 10.0)
 
@@ -382,18 +383,28 @@ def test_a_sharp_top_is_within_99pct_of_its_power_from_10_s_on(seed: int) -> Non
     assert s["t_99"] is not None and s["t_99"] <= 10.0
 
 
+def _lone_tracker(
+    theta: float, power: float, curvature: float, noise: tuple[float, float]
+) -> Tracker:
+    """A tracker at θ (the default sweep's, bracket [1, θ, 6]) on a top of that power and
+    curvature whose fit had that noise, with no rows yet."""
+    from sessions.seekers.regression import Rows
+
+    bracket = [1.0, theta, 6.0]
+    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": bracket}}).seeker
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    seeker.optimum_power = power
+    return Tracker(seeker, theta, curvature, 0.0, Rows(1e-3), noise=noise)
+
+
 def test_the_dither_grows_while_the_tracker_knows_its_optimum_poorly() -> None:
     # The dither is what shows the slope: while the Kalman filter's σ of θ is k times the
     # precision asked, the amplitude the noise asks for grows k-fold (within the cost cap),
     # rather than staying at what a well-known θ would need (a θ 4 % off a sharp top stayed
     # there for a minute behind a 0.8 % dither).
-    from sessions.seekers.regression import Rows
-    from sessions.seekers.tracker import MIN_DITHER, PRECISION, Tracker
+    from sessions.seekers.tracker import MIN_DITHER, PRECISION
 
-    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 2.5, 6.0]}}).seeker
-    seeker = make_seeker(cfg, 1e-3, 15.0)
-    seeker.optimum_power = 12.0
-    tracker = Tracker(seeker, 2.5, -30.0, 0.0, Rows(1e-3), noise=(0.25, 8.0))
+    tracker = _lone_tracker(2.5, 12.0, -30.0, noise=(0.25, 8.0))
     cap = tracker._cap()
     known = tracker._wanted()
     assert MIN_DITHER * 2.5 < known < cap / 2.0  # the noise's, neither floor nor cap
@@ -459,7 +470,6 @@ def _tracked_rows(slope: float, sigma: float, seed: int) -> tuple[object, float]
     """A tracker at θ = 5 after 60 s of a 5 % dither on p = 7 + slope·(w − 5) − 0.15 (w − 5)²
     (a flat top: the optimum at 5 + slope/0.3), with white noise of ``sigma`` W a sample."""
     from sessions.seekers.regression import Rows
-    from sessions.seekers.tracker import Tracker
 
     cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 5.0, 9.0]}}).seeker
     seeker = make_seeker(cfg, 1e-3, 15.0)
@@ -541,15 +551,11 @@ def test_the_dither_spreads_w_more_than_a_sine_for_the_same_excursion() -> None:
     # tracker's square wave (corners rounded by the filter) moves it by no more, and spreads
     # it more. A full-height square would move wd by 0.967 A: past what the cap was set for.
     from sessions.filters import TrajectoryFilter
-    from sessions.seekers.regression import Rows
-    from sessions.seekers.tracker import Tracker
 
-    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 3.0, 6.0]}}).seeker
-    seeker = make_seeker(cfg, 1e-3, 15.0)
-    seeker.optimum_power = 10.0
-    tracker = Tracker(seeker, 3.0, -10.0, 0.0, Rows(1e-3), noise=(0.5, 2.0))
+    tracker = _lone_tracker(3.0, 10.0, -10.0, noise=(0.5, 2.0))
     a = tracker.amplitude()
     assert 0.01 < a < 0.2  # between the floor and the cap: a dither the fit asked for
+    cfg = tracker.owner.cfg
     f = TrajectoryFilter(cfg.filter.order, cfg.filter.pole, 1e-3)
     f.reset(3.0)
     wd = np.empty(60000)
