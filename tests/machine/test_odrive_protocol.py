@@ -28,6 +28,7 @@ from sessions.machine.odrive.protocol import (
 from testing.live import odrive
 
 GEAR, DIRECTION = 4.0, -1
+REPLY, WATCHDOG = 0.2, 0.5  # the backend's reply timeout and the device watchdog, s
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +44,25 @@ def port(emu):
     yield ser
     ser.write(b"c 0 0\nw axis0.requested_state 1\nw axis0.config.enable_watchdog 0\nsc\n")
     ser.close()
+
+
+@pytest.fixture
+def backend(emu):
+    """An ODrive backend on the emulator, closed after the test even when it fails (one left
+    open keeps the pty's exclusive lock: every later test of the module then cannot open it).
+    Its replies may take 200 ms: on a loaded machine the emulator's process answers late, and
+    these tests are about what is said, not when (test_odrive_faults.py times the faults)."""
+    made = []
+
+    def make():
+        spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION, reply_timeout=REPLY,
+                      watchdog_timeout=WATCHDOG)  # fmt: skip
+        made.append(make_machine(spec))
+        return made[-1]
+
+    yield make
+    for m in made:
+        m.close()
 
 
 def ask(ser: serial.Serial, line: bytes, wait: float = 0.5) -> bytes:
@@ -89,10 +109,9 @@ def test_raw_conversation_follows_the_firmware(port):
     assert len(pos.split(b".")[1]) == 6  # printf %f
 
 
-def test_backend_arms_the_device_and_converts_units(emu):
+def test_backend_arms_the_device_and_converts_units(emu, backend):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION)
-    m = make_machine(spec)
+    m = backend()
     m.connect()
     assert m.firmware == (0, 5, 6)
     m.arm(cfg)
@@ -119,9 +138,9 @@ def test_backend_arms_the_device_and_converts_units(emu):
     assert m.state is MachineState.CLOSED
 
 
-def test_backend_writes_the_device_limits(emu, port):
+def test_backend_writes_the_device_limits(port, backend):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    m = make_machine(odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION))
+    m = backend()
     m.connect()
     m.arm(cfg)
     m.close()  # close idles the axis but leaves the limits on the device
@@ -133,7 +152,7 @@ def test_backend_writes_the_device_limits(emu, port):
     gain = float(ask(port, b"r axis0.controller.config.vel_gain\n"))
     assert (1.2 * v_motor - v_motor) * gain == pytest.approx(3.0, rel=1e-4)
     assert ask(port, b"r axis0.controller.config.enable_torque_mode_vel_limit\n") == b"1\r\n"
-    assert float(ask(port, b"r axis0.config.watchdog_timeout\n")) == pytest.approx(0.05)
+    assert float(ask(port, b"r axis0.config.watchdog_timeout\n")) == pytest.approx(WATCHDOG)
     assert ask(port, b"r axis0.controller.config.control_mode\n") == b"1\r\n"
 
 
