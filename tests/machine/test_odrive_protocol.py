@@ -52,17 +52,11 @@ def backend(emu):
     open keeps the pty's exclusive lock: every later test of the module then cannot open it).
     Its replies may take 200 ms: on a loaded machine the emulator's process answers late, and
     these tests are about what is said, not when (test_odrive_faults.py times the faults)."""
-    made = []
-
-    def make():
-        spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION, reply_timeout=REPLY,
-                      watchdog_timeout=WATCHDOG)  # fmt: skip
-        made.append(make_machine(spec))
-        return made[-1]
-
-    yield make
-    for m in made:
-        m.close()
+    spec = odrive(emu.path, gear_ratio=GEAR, direction=DIRECTION, reply_timeout=REPLY,
+                  watchdog_timeout=WATCHDOG)  # fmt: skip
+    m = make_machine(spec)
+    yield m
+    m.close()
 
 
 def ask(ser: serial.Serial, line: bytes, wait: float = 0.5) -> bytes:
@@ -111,7 +105,7 @@ def test_raw_conversation_follows_the_firmware(port):
 
 def test_backend_arms_the_device_and_converts_units(emu, backend):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    m = backend()
+    m = backend
     m.connect()
     assert m.firmware == (0, 5, 6)
     m.arm(cfg)
@@ -140,7 +134,7 @@ def test_backend_arms_the_device_and_converts_units(emu, backend):
 
 def test_backend_writes_the_device_limits(port, backend):
     cfg = parse_session_config({"machine": {"max_torque": 12.0, "max_velocity": 10.0}})
-    m = backend()
+    m = backend
     m.connect()
     m.arm(cfg)
     m.close()  # close idles the axis but leaves the limits on the device
