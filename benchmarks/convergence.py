@@ -1,6 +1,7 @@
 """How fast and how well each seeker finds a person's optimum, over a population of people.
 
-    nice -n 5 python benchmarks/convergence.py [--users 72] [--jobs 2] [--seed 14] [--json]
+    nice -n 5 python benchmarks/convergence.py [--users 72] [--jobs 2] [--seed 14]
+        [--populations 1] [--json]
 
 The population (drawn with a fixed seed, the same people for every seeker: paired):
 - shapes: Hill users (curvature a 0.15-0.6) and measured-curve tables whose power is
@@ -12,11 +13,17 @@ The population (drawn with a fixed seed, the same people for every seeker: paire
   and one person in eight whose w* lies outside the bracket (above or below);
 - 120 s each, the default controller (RISE), the default measurement, 1 kHz.
 Per seeker: median and p95 of t_99 (over the people whose start guess lies outside their
-99 % band), median regret on steady people, min power_ratio over people with w* inside
-(steady and torque-fatigued; drifting people separately), the share reporting ``at_bound``
-when w* is inside (must be 0) and when it is outside, the share of escapes (a target outside
-[γ1, γ3] at any period: must be 0). Also the paper's Exp. 1 and Exp. 2 with ergoseek's
+99 % band) and the median of the search's own t_99 (the track phase's later dips left out),
+median regret on steady people, min power_ratio over people with w* inside (steady and
+torque-fatigued; drifting people separately), the share reporting ``at_bound`` when w* is
+inside (must be 0) and when it is outside, the share of escapes (a target outside [γ1, γ3]
+at any period: must be 0). Also the paper's Exp. 1 and Exp. 2 with ergoseek's
 defaults. Prints one JSON object with ``--json``; wall time and load with it.
+
+One population of 72 is a small sample: its median moves by a second or more from one seed to
+the next. ``--populations N`` draws N populations (seeds seed … seed + N − 1), pools their
+people into the per-seeker table and lists each population's own median ``t_99`` beside it,
+so a change is judged on hundreds of people and on its spread over populations.
 """
 
 from __future__ import annotations
@@ -35,10 +42,11 @@ import numpy as np
 from sessions.config import SeekerConfig, parse_session_config
 from sessions.experiments import experiment
 from sessions.people import SimulatedUser
-from sessions.simulation import run_simulation, score
+from sessions.simulation import SimulationResult, run_simulation, score
 
 SEEKERS = ("sweep", "brent", "parabolic", "perturbation")
 DURATION = 120.0
+MIN_USERS = 12  # people 0-11 hold each shape, each group and one w* outside the bracket
 
 
 def _table(rng: np.random.Generator, family: str) -> tuple[list[list[float]], float]:
@@ -115,6 +123,7 @@ def _bracket(rng: np.random.Generator, user: dict[str, Any], inside: bool) -> li
 
 
 def population(n: int, seed: int) -> list[dict[str, Any]]:
+    """``n`` people drawn with ``seed``; each knows its population's seed."""
     rng = np.random.default_rng(seed)
     people = []
     for i in range(n):
@@ -129,6 +138,7 @@ def population(n: int, seed: int) -> list[dict[str, Any]]:
         people.append(
             {
                 "id": i,
+                "population": seed,
                 "shape": shape,
                 "group": group,
                 "inside": inside,
@@ -139,6 +149,26 @@ def population(n: int, seed: int) -> list[dict[str, Any]]:
             }
         )
     return people
+
+
+def t_99_search(result: SimulationResult, s: dict[str, Any]) -> float | None:
+    """The search's own ``t_99``: the time from which p(wd, t)/p*(t) ≥ 0.99 holds until wd has
+    arrived at the vertex the search converged on (within 2 %), what the track phase does
+    after that left out; None if the search never converged or arrived outside the band.
+    Beside ``t_99`` it tells the search's time from the tracker's later dips."""
+    tc, wc = s["t_converged"], s["wd_converged"]
+    if tc is None or wc is None:
+        return None
+    t, wd = result.column("t"), result.column("wd")
+    there = np.flatnonzero((t >= tc) & (np.abs(wd - wc) <= 0.02 * wc))
+    if len(there) == 0:
+        return None
+    end = int(there[0]) + 1
+    ok = result.user.power_ratio(wd[:end], t[:end], result.cfg.seeker.rho) >= 0.99
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    return float(t[0]) if len(bad) == 0 else round(float(t[bad[-1] + 1]), 3)
 
 
 def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
@@ -160,12 +190,14 @@ def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
     escaped = s["target_min"] < lo - 1e-9 or s["target_max"] > hi + 1e-9
     return {
         "id": person["id"],
+        "population": person["population"],
         "seeker": seeker,
         "shape": person["shape"],
         "group": person["group"],
         "inside": person["inside"],
         "guess_outside_band": ratio0 < 0.99,
         "t_99": s["t_99"],
+        "t_99_search": t_99_search(result, s),
         "regret": s["regret"],
         "power_ratio": round(s["power_ratio"], 5),
         "at_bound": s["at_bound"],
@@ -199,6 +231,7 @@ def table(runs: list[dict[str, Any]], seekers: tuple[str, ...]) -> dict[str, Any
         out[sk] = {
             "median_t_99": quantile([r["t_99"] for r in far], 0.5),
             "p95_t_99": quantile([r["t_99"] for r in far], 0.95),
+            "median_t_99_search": quantile([r["t_99_search"] for r in far], 0.5),
             "users_for_t_99": len(far),
             "median_regret_steady": round(statistics.median(r["regret"] for r in steady), 4),
             "median_regret_all": round(statistics.median(r["regret"] for r in mine), 4),
@@ -245,12 +278,23 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--users", type=int, default=72)
     ap.add_argument("--seed", type=int, default=14)
+    ap.add_argument(
+        "--populations", type=int, default=1, help="populations drawn, seeds seed, seed + 1, …"
+    )
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--seekers", default=",".join(SEEKERS))
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     seekers = tuple(args.seekers.split(","))
-    people = population(args.users, args.seed)
+    if args.users < MIN_USERS:  # every group, and a person with w* outside, in the table
+        ap.error(f"--users must be at least {MIN_USERS}")
+    if args.populations < 1:
+        ap.error("--populations must be at least 1")
+    unknown = sorted(set(seekers) - set(SEEKERS))
+    if unknown:
+        ap.error(f"--seekers: unknown {', '.join(unknown)} (known: {', '.join(SEEKERS)})")
+    seeds = list(range(args.seed, args.seed + args.populations))
+    people = [p for s in seeds for p in population(args.users, s)]
     t0 = time.perf_counter()
     load0 = os.getloadavg()
     with Pool(max(1, min(args.jobs, 2))) as pool:
@@ -263,6 +307,13 @@ def main() -> None:
         "default_seeker": SeekerConfig().kind,
         "users": len(people),
         "seed": args.seed,
+        "populations": {
+            str(s): {
+                sk: table([r for r in runs if r["population"] == s], (sk,))[sk]["median_t_99"]
+                for sk in seekers
+            }
+            for s in seeds
+        },
         "wall_seconds": round(wall, 1),
         "loadavg_start": [round(x, 2) for x in load0],
         "loadavg_end": [round(x, 2) for x in os.getloadavg()],
@@ -271,11 +322,13 @@ def main() -> None:
     if args.json:
         print(json.dumps(out))
         return
-    print(f"{'id':>3s} {'shape':7s} {'group':7s} in seeker        t_99   regret  p/p*    bound")
+    head = f"{'pop':>4s} {'id':>3s} {'shape':7s} {'group':7s} in seeker        t_99   regret"
+    print(f"{head}  p/p*    bound")
     for r in runs:
         t99 = "never" if r["t_99"] is None else f"{r['t_99']:.1f}"
         print(
-            f"{r['id']:3d} {r['shape']:7s} {r['group']:7s} {'y' if r['inside'] else 'n'}  "
+            f"{r['population']:4d} {r['id']:3d} {r['shape']:7s} {r['group']:7s} "
+            f"{'y' if r['inside'] else 'n'}  "
             f"{r['seeker']:12s} {t99:>6s} {r['regret']:7.4f} {r['power_ratio']:.4f}  "
             f"{r['at_bound'] or '-'}{' ESCAPED' if r['escaped'] else ''}"
         )
