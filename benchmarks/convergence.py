@@ -168,7 +168,7 @@ def t_99_search(result: SimulationResult, s: dict[str, Any]) -> float | None:
     if not ok[-1]:
         return None
     bad = np.flatnonzero(~ok)
-    return float(t[0]) if len(bad) == 0 else round(float(t[bad[-1] + 1]), 3)
+    return float(t[0]) if len(bad) == 0 else float(t[bad[-1] + 1])
 
 
 def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
