@@ -42,7 +42,7 @@ import numpy as np
 from sessions.config import SeekerConfig, parse_session_config
 from sessions.experiments import experiment
 from sessions.people import SimulatedUser
-from sessions.simulation import SimulationResult, run_simulation, score
+from sessions.simulation import SimulationResult, held_from, run_simulation, score
 
 SEEKERS = ("sweep", "brent", "parabolic", "perturbation")
 DURATION = 120.0
@@ -165,10 +165,7 @@ def t_99_search(result: SimulationResult, s: dict[str, Any]) -> float | None:
         return None
     end = int(there[0]) + 1
     ok = result.user.power_ratio(wd[:end], t[:end], result.cfg.seeker.rho) >= 0.99
-    if not ok[-1]:
-        return None
-    bad = np.flatnonzero(~ok)
-    return float(t[0]) if len(bad) == 0 else float(t[bad[-1] + 1])
+    return held_from(t[:end], ok)
 
 
 def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:

@@ -112,7 +112,7 @@ def run_simulation(cfg: SessionConfig, *, as_printed: bool = False) -> Simulatio
     )
 
 
-def _settle_time(t: np.ndarray, ok: np.ndarray) -> float | None:
+def held_from(t: np.ndarray, ok: np.ndarray) -> float | None:
     """Earliest time after which ``ok`` holds to the end; None if it fails at the end."""
     if len(ok) == 0 or not ok[-1]:
         return None
@@ -151,8 +151,8 @@ def score(result: SimulationResult) -> dict[str, Any]:
         "p_star": p_star,
         "wd_final": wd_final,
         "power_ratio": user.true_power(wd_final, rho, end) / p_star,
-        "t_1pct": _settle_time(t, np.abs(wd - w_star_t) <= 0.01 * w_star_t),
-        "t_99": _settle_time(t, ratio >= 0.99),
+        "t_1pct": held_from(t, np.abs(wd - w_star_t) <= 0.01 * w_star_t),
+        "t_99": held_from(t, ratio >= 0.99),
         "regret": summary.get("regret"),
         "at_bound": summary.get("at_bound"),
         "target_min": summary.get("target_min"),
