@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from sessions.config import SeekerConfig, parse_session_config
+from sessions.config import SeekerConfig, SessionConfig, parse_session_config
 from sessions.experiments import experiment
 from sessions.people import SimulatedUser
 from sessions.simulation import SimulationResult, held_from, run_simulation, score
@@ -168,9 +168,9 @@ def t_99_search(result: SimulationResult, s: dict[str, Any]) -> float | None:
     return held_from(t[:end], ok)
 
 
-def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
-    person, seeker = args
-    cfg = parse_session_config(
+def session_config(person: dict[str, Any], seeker: str) -> SessionConfig:
+    """One person's session with one seeker: every default, DURATION long."""
+    return parse_session_config(
         {
             "duration": DURATION,
             "seed": person["seed"],
@@ -179,7 +179,11 @@ def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
             "seeker": {"kind": seeker, "bracket": person["bracket"]},
         }
     )
-    result = run_simulation(cfg)
+
+
+def job(args: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    person, seeker = args
+    result = run_simulation(session_config(person, seeker))
     s = score(result)
     lo, guess, hi = person["bracket"]
     user = result.user

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sessions.config import parse_session_config
 from sessions.simulation import run_simulation, score
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "convergence.py"
@@ -53,16 +52,7 @@ def test_each_population_is_drawn_with_its_own_seed() -> None:
 @pytest.mark.parametrize("pid", [10, 11])  # #11 of seed 14: its tracker dips after the search
 def test_the_searchs_own_t99_holds_until_wd_is_at_its_vertex(pid: int) -> None:
     person = convergence.population(12, 14)[pid]
-    cfg = parse_session_config(
-        {
-            "duration": convergence.DURATION,
-            "seed": person["seed"],
-            "machine": {"max_velocity": person["max_velocity"]},
-            "user": person["user"],
-            "seeker": {"kind": "sweep", "bracket": person["bracket"]},
-        }
-    )
-    result = run_simulation(cfg)
+    result = run_simulation(convergence.session_config(person, "sweep"))
     s = score(result)
     ts = convergence.t_99_search(result, s)
     t, wd = result.column("t"), result.column("wd")
