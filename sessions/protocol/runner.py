@@ -72,6 +72,28 @@ def adopt(f: TrajectoryFilter, wd: float, ad: float, jd: float) -> None:
     f.wd, f.ad, f.jd = wd, ad, jd
 
 
+def towards_rest(f: TrajectoryFilter) -> float:
+    """Make the filter's output move only towards rest from now on while its input does (a
+    stop never speeds the handle up), changing no state it need not: each lag's state is
+    pulled to no farther from 0 than the next lag's (and not past 0). A lag whose input moves
+    monotonically towards 0 from no farther out than its own state moves so itself, so by
+    induction down the cascade wd does. Returns the first lag's state, where the stop's ramp
+    of γ must start. A reference already falling in order is left as it was (bumpless); one
+    still rising loses its acceleration at once (a step of J·ad in the feedforward)."""
+    ys = [f.y1, f.y2, f.y3, f.y4][: f.order]
+    s = 1.0 if ys[-1] >= 0.0 else -1.0
+    for i in range(f.order - 2, -1, -1):  # from the lag before wd out to the first
+        ys[i] = s * min(max(s * ys[i], 0.0), s * ys[i + 1])
+    if f.order == 4:
+        f.y1, f.y2, f.y3, f.y4 = ys
+    else:
+        f.y1, f.y2, f.y3 = ys
+    p, n = f.pole, f.order
+    f.ad = p * (ys[n - 2] - ys[n - 1])
+    f.jd = p * p * (ys[n - 3] - 2.0 * ys[n - 2] + ys[n - 1])
+    return ys[0]
+
+
 class ProtocolRunner:
     """Runs ``cfg.protocol`` (or one seek phase) around ``seeker``."""
 
@@ -220,6 +242,12 @@ class ProtocolRunner:
         self.plan = stop_plan(self.wd)
         self.seg_i = 0
         self._enter_segment(j)
+        f = self.filter
+        start = towards_rest(f)
+        self.ad, self.jd = f.ad, f.jd
+        if self.mode == RAMP:  # γ from the first lag's state down to 0, no farther out
+            self.gamma0 = self.target = start
+            self.slope = -start / (self.k_end - self.k0)
 
     def _finish(self, j: int) -> None:
         """At rest: hold γ = 0 until the worker releases the torque."""

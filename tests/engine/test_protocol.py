@@ -182,6 +182,37 @@ def test_wind_down_brings_the_handle_to_rest_under_control() -> None:
     assert len(after) * cfg.dt < r[30_000, 3] / STOP_DECELERATION + 4.0
 
 
+@pytest.mark.parametrize("order", [3, 4])
+def test_a_stop_asked_while_the_handle_speeds_up_never_speeds_it_up_further(order: int) -> None:
+    """The trainer stops while the search drives the handle up its steepest: from that period
+    on wd only falls (the filter's momentum does not carry the handle faster), and it comes
+    to rest. Bumpless adoption of a rising reference let wd climb on for the filter's lag."""
+    cfg = session(
+        {"phases": [{"kind": "seek", "duration": 60.0, "until_converged": False}]},
+        seeker={"kind": "sweep", "bracket": (1.0, 1.5, 8.0), "filter": {"order": order}},
+    )
+    loop, plant = Loop(cfg), Plant(cfg.machine.inertia)
+    person = CuedPerson(SimulatedUser(cfg.user, cfg.dt, cfg.seed), loop.reference, cfg.dt)
+    loop.begin(0.0, 0.0)
+    wd, ad, asked = [], [], None
+    for k in range(round(60.0 / cfg.dt)):
+        if asked is None and k * cfg.dt > 3.0 and loop.value("ad") > 0.3:
+            asked = k  # climbing fast towards an optimum far above the guess
+            loop.wind_down()
+        u = loop.step(plant.q, plant.w, plant.sample_torque(person))
+        wd.append(loop.value("wd"))
+        ad.append(loop.value("ad"))
+        plant.advance(u, cfg.dt, person)
+        person.advance(cfg.dt)
+        if loop.finished:
+            break
+    assert asked is not None and loop.finished
+    after = np.array(wd[asked:])
+    assert np.all(np.diff(after) <= 1e-12), f"wd rose by {after.max() - after[0]:.3f} rad/s"
+    assert np.array(ad[asked + 1 :]).max() <= 1e-9  # the row of the asked period: as it ran
+    assert abs(wd[-1]) < REST_VELOCITY
+
+
 def test_a_cued_person_follows_the_effort_as_a_first_order_response() -> None:
     class Cue:
         effort = 1.0
