@@ -70,7 +70,8 @@ TRAIL_SPAN = 0.1  # the trailing line covers this fraction of w travelled …
 TRAIL_MIN, TRAIL_MAX = 0.5, 2.0  # … within these many seconds
 K_SLOPE = 2.5  # standard errors for "climbing" / "falling"
 MIN_ELASTICITY = 0.03  # |d ln p / d ln w| below this is no slope (a model's misfit, not data)
-K_BRACKET = 2.5  # standard errors for "the quadratic sees both sides fall"
+K_BRACKET = 2.0  # standard errors for "the quadratic sees both sides fall" (the fits'
+# standard errors are 2-2.5x their scatter, docs/benchmarks.md: 2 of them are 4-5 real ones)
 DROP = 0.01  # a side of the top is seen once the power there is this fraction below it
 SIDE_ROWS = 25  # rows (half a second) needed on each side of the vertex
 K_EDGE = 3.0  # standard errors for "the power still rises through the bound"
