@@ -74,7 +74,8 @@ if TYPE_CHECKING:
     from sessions.seekers.base import Seeker
 
 REFIT = 1.0  # s between steps
-WANDER = 0.02  # the optimum's random walk, fraction of θ per √s (the filter's prior)
+WANDER = 0.015  # the optimum's random walk, fraction of θ per √s (the filter's prior; 2 % let a
+# noisy steady top wander out of its band: docs/benchmarks.md, "A prior of 1.5 %")
 RATE = 0.02  # the most θ moves, as a fraction of θ per second
 WINDOW = 0.3  # rows within three dither amplitudes of θ are used, at most this fraction …
 NARROW = 0.08  # … and at least this one (away from θ a Hill curve is no parabola)
