@@ -15,7 +15,8 @@ passes), first and second harmonic (one and two pushes per revolution).
 The abscissa w of a row is where the power was produced, without what the person's own
 fluctuation did to it: wd + ē, the commanded velocity plus the tracking error averaged over
 ``E_SMOOTH`` (1 s; the tracker, whose dither moves wd far less than a search does, sets a
-longer one with :meth:`Rows.smooth`). Not the raw w: a person pushing harder for a moment
+longer one with :meth:`Rows.smooth`, and re-bases the search's last rows it fits on it: each
+row keeps its wd and its own tracking error e). Not the raw w: a person pushing harder for a moment
 speeds the handle up before the controller brings it back, so the raw w and the power's
 noise move together, and a regression on the raw w reads that as a slope (an
 errors-in-variables bias: with 5 % noise and a ±4 % dither it moves the fitted top by ~8 %).
@@ -37,8 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-COLUMNS = ("t", "w", "p", "s1", "c1", "s2", "c2")
-T, W, P, S1, C1, S2, C2 = range(7)
+COLUMNS = ("t", "w", "p", "s1", "c1", "s2", "c2", "wd", "e")
+T, W, P, S1, C1, S2, C2, WD, E = range(9)  # w: the abscissa, wd + ē; e: the block's own
 
 
 E_SMOOTH = 1.0  # s: the tracking error's average in the abscissa
@@ -63,10 +64,19 @@ class Rows:
         self.e_mean = math.nan
         self.clear_block()
 
-    def smooth(self, seconds: float) -> None:
+    def smooth(self, seconds: float, since: float | None = None) -> None:
         """Average the tracking error in the abscissa over ``seconds`` from the next row on
-        (an exponential moving average of that time constant)."""
+        (an exponential moving average of that time constant); with ``since``, the rows from
+        then on get as abscissa wd plus their tracking error's mean, and the average goes on
+        from that mean (rows a longer average will be fitted with)."""
         self.alpha = min(1.0, self.block_s / seconds)
+        if since is None or not self.size:
+            return
+        d = self.data[: self.size]
+        d = d[np.searchsorted(d[:, T], since) :]
+        if len(d):
+            self.e_mean = float(d[:, E].mean())
+            d[:, W] = d[:, WD] + self.e_mean
 
     def clear_block(self) -> None:
         self._st = self._sq = self._sp = self._sw = self._sd = 0.0
@@ -105,6 +115,8 @@ class Rows:
             math.cos(q),
             math.sin(2.0 * q),
             math.cos(2.0 * q),
+            wd,
+            e,
         )
         self.size += 1
         self.clear_block()

@@ -35,6 +35,15 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   as it raises the power) is then a good part of the abscissa's spread, in step with the
   power's noise: an errors-in-variables slope that walked θ up (+12 % in 100 s on a sharp
   person with 4 % noise and the 0.8 % dither floor). A lasting tracking error stays in ē;
+- the first refit comes 2·REFIT after the track phase begins, not a whole dither period
+  later: until its own dither has run a period, the fits also take the search's last
+  LOOKBACK seconds of rows (the end of its last refine pass and the settling onto the
+  vertex, a spread of w around θ the dither takes a period to give), their abscissa
+  re-based on the longer average of the tracking error (:meth:`~.regression.Rows.smooth`).
+  θ held a dither period where the search left it while a drifting w* moved on (a clean
+  Hill person: 10.6 % above w* over the next 6-12 s, now 3.3 %). Only until then: kept
+  as long as any row (3·track_memory), the refine pass's spread read a sharp top's
+  asymmetry as a slope under a 1 % dither (θ +1.6 %);
 - a pause (no samples for PAUSE: a protocol's rest between work intervals) is no part of
   the person's curve: the rows of the first RESUME seconds after it are left out of the fits.
   The person's effort comes back from rest within a second, a step in the power far larger
@@ -89,6 +98,7 @@ PAUSE = 0.1  # s without samples: the session paused the tracker (a protocol's r
 RESUME = 2.0  # … and the rows of this long after it came back are left out of the fits
 SQUARE = 0.8  # the square dither's height, fraction of A: wd's excursion a sine's (above)
 PRECISE_STEP = 0.05  # a Newton step is taken whole when its vertex is known to this of θ
+LOOKBACK = 6.0  # s of the search's last rows the fits use until a dither period has run
 
 
 def smoothstep(x: float) -> float:
@@ -117,7 +127,8 @@ class Tracker:
         cfg = owner.cfg
         self.owner = owner
         self.rows = rows
-        rows.smooth(cfg.track_memory)  # the abscissa's noise well below the dither's spread
+        # the abscissa's noise well below the dither's spread, from the search's last rows on
+        rows.smooth(cfg.track_memory, since=t0 - LOOKBACK)
         self.theta = owner.clamp(theta)
         self.curv = curvature if curvature is not None and curvature < 0.0 else None
         self.t0 = t0
@@ -126,7 +137,7 @@ class Tracker:
         self.omega = 2.0 * math.pi / cfg.dither_period
         self.memory = cfg.track_memory
         self.next_fit = t0 + REFIT
-        self.last_fit = t0 + cfg.dither_period
+        self.last_fit = t0 + REFIT
         self.level = owner.optimum_power
         self.noise = noise  # (residual std of a row, its correlation inflation)
         self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
@@ -183,7 +194,7 @@ class Tracker:
         if t < self.next_fit:
             return None
         self.next_fit = t + REFIT
-        if t < self.t0 + self.period:  # a whole dither period first: no slope from a transient
+        if t < self.t0 + 2.0 * REFIT:  # a row or two of the track phase's own first
             return None
         dt_fit, self.last_fit = t - self.last_fit, t
         f = self._fit(t)
@@ -242,7 +253,9 @@ class Tracker:
         ridge: a dither alone cannot pin it down)."""
         theta = self.theta
         half = min(WINDOW, max(3.0 * self.amp_now / theta, NARROW))
-        d = self.rows.view(since=max(t - 3.0 * self.memory, self.t0))
+        # until its own dither has run a whole period, the search's last rows too
+        first = self.t0 - LOOKBACK if t < self.t0 + self.period else self.t0
+        d = self.rows.view(since=max(t - 3.0 * self.memory, first))
         d = d[np.abs(d[:, W] - theta) <= half * theta]
         for start in self.resumed:  # the person's effort coming back is no slope
             d = d[(d[:, T] < start) | (d[:, T] >= start + RESUME)]

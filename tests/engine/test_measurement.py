@@ -205,6 +205,31 @@ def test_the_abscissa_ignores_the_persons_own_fluctuation() -> None:
     assert raw_slope > 5 * raw_se and raw_slope > 0.5  # the bias the rows avoid
 
 
+def test_rows_re_based_on_a_longer_average_take_wd_plus_their_mean_tracking_error() -> None:
+    # The track phase fits the search's last rows with its own, longer average of the
+    # tracking error: from ``since`` on each row's abscissa becomes its wd plus the mean of
+    # those rows' errors, the rows before keep theirs, and the average goes on from there.
+    dt = 1e-3
+    rows = Rows(dt)
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 4.0, dt)
+    wd = 3.0 + 0.2 * np.sin(t)
+    e = 0.05 * np.sign(np.sin(7.0 * t)) + 0.01 * rng.standard_normal(len(t))
+    for k in range(len(t)):
+        rows.add(float(t[k]), 0.0, 1.0, float(wd[k] + e[k]), float(wd[k]))
+    before = rows.view().copy()
+    rows.smooth(20.0, since=2.0)
+    after = rows.view()
+    late = before[:, 0] >= 2.0
+    n = rows.n_block
+    block_wd = wd.reshape(-1, n).mean(axis=1)  # the rows' own wd and e, from the samples
+    block_e = e.reshape(-1, n).mean(axis=1)
+    assert np.allclose(after[~late], before[~late])
+    assert np.allclose(after[late, 1], block_wd[late] + block_e[late].mean(), atol=1e-12)
+    assert rows.e_mean == pytest.approx(float(block_e[late].mean()), abs=1e-12)
+    assert not np.allclose(before[late, 1], after[late, 1])  # the 1 s average was another
+
+
 def test_a_level_curving_in_time_stays_out_of_the_slope() -> None:
     # The tracker's model around θ = 3: a 3 % dither for 60 s on p = L(t)·(8 − 0.8 (w − 3.1)²)
     # with L(t) = exp(−t/200), a strength that fatigues. The level falls 26 % while the

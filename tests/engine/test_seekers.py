@@ -328,6 +328,26 @@ def test_the_tracker_follows_a_flat_topped_optimum_that_drifts_away(seed: int) -
     assert end >= 0.98  # and the optimum stored for the person
 
 
+def test_the_track_phase_steps_from_the_searchs_last_rows_at_once() -> None:
+    # A clean Hill person whose optimum falls 20 % (T = 40 s). The search converges 7.7 %
+    # above w* (a parabola's vertex leans to a Hill top's flatter, faster side). The track
+    # phase used to wait a whole dither period (6 s) for rows of its own, θ held where the
+    # search left it while w* fell: over the 6-12 s after convergence θ was 10.6 % above
+    # w*. With the search's last LOOKBACK seconds of rows (their abscissa re-based on the
+    # track phase's longer average of the tracking error) its first step comes 2 refits
+    # after it starts: 3.3 %.
+    from sessions.simulation import run_simulation
+
+    user = {"kind": "hill", "velocity_fatigue_tau": 40.0, "velocity_fatigue_floor": 0.8}
+    r = run_simulation(parse_session_config({"duration": 30.0, "seed": 1, "user": user}))
+    sm = r.summary
+    assert sm is not None and sm.t_converged is not None
+    t, gamma = r.column("t"), r.column("gamma")
+    window = (t >= sm.t_converged + 6.0) & (t < sm.t_converged + 12.0)  # one dither period
+    w_star = np.array([r.user.w_star(t=float(x)) for x in t[window]])
+    assert float(gamma[window].mean() / w_star.mean()) <= 1.07
+
+
 @pytest.mark.parametrize("seed", [1, 3, 6])
 def test_a_small_dither_does_not_read_the_persons_fluctuation_as_a_slope(seed: int) -> None:
     # A sharp steady person (99 % band about ±5 %) with 5 % noise, the dither held to 1 % of
