@@ -16,8 +16,8 @@ The abscissa w of a row is where the power was produced, without what the person
 fluctuation did to it: wd + ē, the commanded velocity plus the tracking error averaged over
 ``E_SMOOTH`` (1 s; the tracker, whose dither moves wd far less than a search does, sets a
 longer one with :meth:`Rows.smooth`, and re-bases the search's last rows it fits on it: each
-row keeps its wd and its own tracking error e). Not the raw w: a person pushing harder for a moment
-speeds the handle up before the controller brings it back, so the raw w and the power's
+row keeps its wd and its own tracking error e). Not the raw w: a person pushing harder for a
+moment speeds the handle up before the controller brings it back, so the raw w and the power's
 noise move together, and a regression on the raw w reads that as a slope (an
 errors-in-variables bias: with 5 % noise and a ±4 % dither it moves the fitted top by ~8 %).
 wd is exogenous (the seeker sets it); ē keeps the abscissa unbiased by a lasting tracking
@@ -72,8 +72,7 @@ class Rows:
         self.alpha = min(1.0, self.block_s / seconds)
         if since is None or not self.size:
             return
-        d = self.data[: self.size]
-        d = d[np.searchsorted(d[:, T], since) :]
+        d = self.view(since)  # a view: the rows are re-based in place
         if len(d):
             self.e_mean = float(d[:, E].mean())
             d[:, W] = d[:, WD] + self.e_mean

@@ -12,7 +12,7 @@ import pytest
 from sessions.seekers.averaging import PowerAverager, summarise
 from sessions.seekers.base import Evaluation
 from sessions.seekers.fit import final_estimate, quadratic_peak, top_curvature
-from sessions.seekers.regression import Rows, fit, smooth_top
+from sessions.seekers.regression import Rows, T, W, fit, smooth_top
 
 
 def ar1(n: int, std: float, rho: float, seed: int) -> np.ndarray:
@@ -220,14 +220,14 @@ def test_rows_re_based_on_a_longer_average_take_wd_plus_their_mean_tracking_erro
     before = rows.view().copy()
     rows.smooth(20.0, since=2.0)
     after = rows.view()
-    late = before[:, 0] >= 2.0
+    late = before[:, T] >= 2.0
     n = rows.n_block
     block_wd = wd.reshape(-1, n).mean(axis=1)  # the rows' own wd and e, from the samples
     block_e = e.reshape(-1, n).mean(axis=1)
     assert np.allclose(after[~late], before[~late])
-    assert np.allclose(after[late, 1], block_wd[late] + block_e[late].mean(), atol=1e-12)
+    assert np.allclose(after[late, W], block_wd[late] + block_e[late].mean(), atol=1e-12)
     assert rows.e_mean == pytest.approx(float(block_e[late].mean()), abs=1e-12)
-    assert not np.allclose(before[late, 1], after[late, 1])  # the 1 s average was another
+    assert not np.allclose(before[late, W], after[late, W])  # the 1 s average was another
 
 
 def test_a_level_curving_in_time_stays_out_of_the_slope() -> None:
