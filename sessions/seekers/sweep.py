@@ -16,11 +16,20 @@ multiplicative) regressed out, so the candidate can move all the time.
    0.2 s a line through the last ~10 % of w travelled (0.5-2 s of rows, the ripple divided
    out) gives the local slope; a slope counts when it is K_SLOPE standard errors and an
    elasticity of MIN_ELASTICITY away from zero. Downhill along the leg: the power falls on that
-   side of the top; the leg reverses, unless it has fallen on both sides. The quadratic
-   through the rows within ±30 % of the top may see both sides fall first (by DROP, at
-   K_BRACKET standard errors; a side the trailing line saw fall needs no second proof: a
-   fast leg leaves few rows there). At a bound while climbing: one expansion step (``expand``), or
-   the search ends there; reaching a bound counts as that side seen.
+   side of the top; the leg reverses, unless it has fallen on both sides. The lines need the
+   stroke ripple divided out, learnt once the stroke has turned CLIMB_TURN (half a
+   revolution) and trusted to turn a leg round only from TURN (a whole one) on: at a slow
+   cadence a revolution takes seconds (5 s at 1.2 rad/s) during which the first leg crept
+   at ``sweep_rate`` up a steep flank it could already see; half a revolution's ripple may
+   misread a flat stretch as a fall, and a leg turned the wrong way costs far more than one
+   that climbs on slowly. Until TURN a climb speeds the leg up only once wd is past γ2:
+   before that the rows are the lead-in's approach to γ2, and a leg sped up there ran on at
+   4× far past a top just beyond γ2 (docs/benchmarks.md, "Half a revolution speeds a climb
+   up").
+   The quadratic through the rows within ±30 % of the top may see both sides fall first
+   (by DROP, at K_BRACKET standard errors; a side the trailing line saw fall needs no
+   second proof: a fast leg leaves few rows there). At a bound while climbing: one expansion
+   step (``expand``), or the search ends there; reaching a bound counts as that side seen.
 3. **Refine.** Passes across the band where the fitted power is within 1 % of its top,
    v ± sqrt(0.02 p/|p''|) (3-30 % of v), re-centred on the vertex after each pass: the
    candidate stays within the 99 % band while the estimate sharpens. Converged once
@@ -86,6 +95,8 @@ FAST = 4.0  # the most a leg speeds up on a steep flank
 STEEP = (0.15, 0.45)  # elasticities from which a leg speeds up, and at which it is fastest
 ACC_GATE = 0.3  # rows start once |ad| is below this fraction of w per second
 MIN_ROWS = 12
+CLIMB_TURN = math.pi  # rad the stroke turns before a learnt ripple may speed a climb up …
+TURN = 2.0 * math.pi  # … and before a fall it shows may turn a leg round
 UNKNOWN_BAND = 0.15  # a refine pass's half-width before the curvature is known
 RIPPLE_MEMORY = 30.0  # s of rows the ripple is learnt from
 
@@ -95,7 +106,8 @@ class SweepSeeker(Seeker):
     __slots__ = (
         "filter", "rows", "tracker", "stage", "direction", "dropped", "legs", "passes",
         "next_fit", "next_report", "best_w", "best_p", "span", "lead", "rate", "settle_to",
-        "fit_top", "ripple", "ripple_known", "gate_t", "q_first", "q_last", "_report_from",
+        "fit_top", "ripple", "ripple_known", "ripple_whole", "gate_t", "q_first", "q_last",
+        "_report_from",
     )  # fmt: skip
 
     def __init__(self, cfg: SeekerConfig, dt: float, max_velocity: float) -> None:
@@ -120,6 +132,9 @@ class SweepSeeker(Seeker):
         self.fit_top: Fit | None = None
         self.ripple = (0.0, 0.0, 0.0, 0.0)
         self.ripple_known = False
+        # learnt over TURN: a fall it shows may turn a leg round; until then a climb it shows
+        # speeds the leg up only past γ2, the lead-in's approach to γ2 left to the filter
+        self.ripple_whole = False
         self.gate_t = math.inf  # rows from here on are used for p(w); all of them for the ripple
         self.q_first = self.q_last = math.nan
         self._report_from = cfg.start_delay
@@ -201,10 +216,11 @@ class SweepSeeker(Seeker):
         return ev
 
     def _learn_ripple(self, t: float) -> None:
-        """The stroke ripple, once the rows cover a revolution: a cubic in w times the ripple
-        through the last RIPPLE_MEMORY seconds of rows (lead-in included: a smooth bias in
-        the power does not look like a function of the angle)."""
-        if not self.q_last - self.q_first >= 2.0 * math.pi:
+        """The stroke ripple, once the rows cover CLIMB_TURN of the stroke (whole from TURN on):
+        a cubic in w times the ripple through the last RIPPLE_MEMORY seconds of rows (lead-in
+        included: a smooth bias in the power does not look like a function of the angle)."""
+        turned = self.q_last - self.q_first
+        if not turned >= CLIMB_TURN:
             return
         d = self.rows.view(t - RIPPLE_MEMORY)
         if len(d) < 4 * MIN_ROWS:
@@ -215,6 +231,7 @@ class SweepSeeker(Seeker):
         f = fit_ripple(d, cols)
         if f is not None:
             self.ripple, self.ripple_known = f, True
+            self.ripple_whole = turned >= TURN
 
     def _locate_step(self, t: float) -> None:
         if not self.ripple_known:  # until then a slope may be the stroke's, not the curve's
@@ -232,8 +249,12 @@ class SweepSeeker(Seeker):
         elasticity = along * w_now / max(abs(p_now), 1e-12)
         steep = min(max((elasticity - STEEP[0]) / (STEEP[1] - STEEP[0]), 0.0), 1.0)
         climbing = along > K_SLOPE * se
+        if not self.ripple_whole and (self.wd - self.cfg.bracket[1]) * self.direction < 0.0:
+            climbing = False  # still the lead-in's approach to γ2 (see ripple_whole)
         self.rate = self.cfg.sweep_rate * (1.0 + (FAST - 1.0) * steep * climbing)
         ahead = "upper" if self.direction > 0 else "lower"
+        if along < -K_SLOPE * se and not self.ripple_whole:
+            return  # part of a revolution's ripple may speed a climb up, not turn a leg round
         if along < -K_SLOPE * se:  # the power falls this way: the top is behind
             self.dropped.add(ahead)
             if len(self.dropped) == 2:
@@ -479,8 +500,9 @@ class SweepSeeker(Seeker):
             f = self.fit_top
             curv = f.curvature[0] if f is not None and f.concave(2.0) else None
             noise = (f.sigma, f.inflate) if f is not None else None
+            vertex_se = f.vertex()[1] if curv is not None and f is not None else None
             assert self.optimum is not None
-            self.tracker = Tracker(self, self.optimum, curv, t, self.rows, noise)
+            self.tracker = Tracker(self, self.optimum, curv, t, self.rows, noise, vertex_se)
             self.tracking = True
 
     def _report(self, t: float) -> Evaluation | None:

@@ -51,9 +51,11 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   19 % above w* over the first work interval of an interval training);
 - the model's slope may change in time (an x·τ term): its vertex at the latest row is the
   optimum *now*, so a drifting optimum is followed without the window's lag;
-- that vertex v (standard error σv) moves θ through a Kalman filter: the optimum a random
-  walk of WANDER·θ per √s, each refit a measurement of variance σv²·track_memory/REFIT
-  (the windows overlap: a refit brings REFIT/track_memory of new data). On a clean signal
+- that vertex v (standard error σv) moves θ through a Kalman filter: it starts at the
+  search's vertex with that vertex's standard error (at least PRECISION·θ: a vertex the search
+  knew to 6 % is no 2 % fact), the optimum a random walk of WANDER·θ per √s, each refit a
+  measurement of variance σv²·track_memory/REFIT (the windows overlap: a refit brings
+  REFIT/track_memory of new data). On a clean signal
   θ follows within seconds; on a noisy one it moves only as the evidence accumulates, so
   noise does not make it wander. At most ``RATE``·θ per second;
 - the slope decides when the vertex cannot (:meth:`Tracker._slope_step`): with the search's
@@ -123,6 +125,7 @@ class Tracker:
         t0: float,
         rows: Rows,
         noise: tuple[float, float] | None = None,
+        vertex_se: float | None = None,
     ) -> None:
         cfg = owner.cfg
         self.owner = owner
@@ -140,8 +143,10 @@ class Tracker:
         self.last_fit = t0 + REFIT
         self.level = owner.optimum_power
         self.noise = noise  # (residual std of a row, its correlation inflation)
-        self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance
-        self.var = (PRECISION * self.theta) ** 2
+        self.x = self.theta  # the Kalman filter's estimate of the optimum and its variance:
+        # known as well as the search knew its vertex, and no better than PRECISION
+        known = vertex_se if vertex_se is not None and math.isfinite(vertex_se) else 0.0
+        self.var = max(PRECISION * self.theta, known) ** 2
         self.amp_now = self._wanted()
         self.seen = t0
         self.resumed: list[float] = []  # when the samples came back after a pause

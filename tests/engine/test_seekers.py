@@ -434,6 +434,66 @@ def test_the_dither_grows_while_the_tracker_knows_its_optimum_poorly() -> None:
     assert tracker._wanted() == pytest.approx(cap)
 
 
+def test_the_track_phase_knows_theta_as_well_as_the_search_knew_its_vertex() -> None:
+    # The Kalman filter starts from the search's vertex with that vertex's standard error,
+    # not from PRECISION whatever the search saw: a vertex known to 6 % of θ is no 2 % fact,
+    # and the filter would take the track phase's first refits as noise. Never better known
+    # than PRECISION, and an unknown error (no curvature) is PRECISION.
+    from sessions.seekers.regression import Rows
+    from sessions.seekers.tracker import PRECISION
+
+    cfg = parse_session_config({"seeker": {"kind": "sweep", "bracket": [1.0, 2.5, 6.0]}}).seeker
+    seeker = make_seeker(cfg, 1e-3, 15.0)
+    for vertex_se, sd in ((0.15, 0.15), (0.01, PRECISION * 2.5), (None, PRECISION * 2.5),
+                          (math.inf, PRECISION * 2.5)):  # fmt: skip
+        tracker = Tracker(seeker, 2.5, -30.0, 0.0, Rows(1e-3), vertex_se=vertex_se)
+        assert math.sqrt(tracker.var) == pytest.approx(sd)
+
+
+def _slow_stroke_session(user: dict, bracket: list[float], seed: int, seconds: float) -> tuple:
+    """(t, wd, γ) of a default session and when the stroke first turned a whole revolution
+    after the start delay."""
+    from sessions.simulation import run_simulation
+
+    cfg = parse_session_config(
+        {"duration": seconds, "seed": seed, "user": user, "seeker": {"bracket": bracket}}
+    )
+    r = run_simulation(cfg)
+    t, q = r.column("t"), r.column("q")
+    k0 = int(np.searchsorted(t, cfg.seeker.start_delay))
+    turned = float(t[k0 + int(np.searchsorted(q[k0:] - q[k0], 2.0 * math.pi))])
+    return t, r.column("wd"), r.column("gamma"), turned
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_slow_strokes_first_leg_climbs_before_a_whole_revolution(seed: int) -> None:
+    # A sharp top at w* = 2.9 rad/s and a start guess at 0.55 w*: at that cadence the stroke
+    # turns once in 3.8 s after the start delay. The trailing lines waited for a whole
+    # revolution's ripple, and the first leg crept up the steep flank at sweep_rate all that
+    # time: wd reached 0.9 w* at 6.6 s. From half a revolution on, a climb the lines see
+    # speeds the leg up: 5.5 s.
+    user = {"kind": "table", "points": log_top_table(2.9, 6.0, 0.38, 2.0), "noise": 0.01,
+            "ripple": 0.11}  # fmt: skip
+    t, wd, _, turned = _slow_stroke_session(user, [1.2, 1.6, 5.2], seed, 8.0)
+    assert turned > 5.0  # the premise: a slow stroke
+    reached = float(t[np.argmax(wd >= 0.9 * 2.9)])
+    assert reached <= 6.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_half_a_revolution_turns_no_leg_round(seed: int) -> None:
+    # A flat top (99 % band about ±30 %) at w* = 2.1 rad/s, 3.4 % noise, 12 % ripple, the
+    # guess at 0.58 w*. Half a revolution's ripple misread part of the stroke as a fall: the
+    # first leg turned round at 1.45 rad/s (0.69 w*) 4.6 s in, and the search converged at
+    # 35 s. A fall turns a leg only once the ripple is learnt over a whole revolution.
+    user = {"kind": "table", "points": log_top_table(2.1, 5.0, 0.6, 4.0), "noise": 0.034,
+            "ripple": 0.12}  # fmt: skip
+    t, _, gamma, turned = _slow_stroke_session(user, [0.73, 1.22, 3.2], seed, 12.0)
+    start = t > 1.5
+    down = np.flatnonzero(start[1:] & (np.diff(gamma) < -1e-9))  # γ moving down: turned
+    assert len(down) == 0 or float(t[down[0] + 1]) >= turned
+
+
 def test_a_refine_pass_entering_its_span_never_aims_past_its_far_end() -> None:
     # wd below a pass's span (the locate leg overshot the top): the candidate may run ahead
     # of wd by the filter's lag while it climbs, but not past the span's far end, else the
