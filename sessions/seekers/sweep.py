@@ -253,9 +253,9 @@ class SweepSeeker(Seeker):
             climbing = False  # still the lead-in's approach to γ2 (see ripple_whole)
         self.rate = self.cfg.sweep_rate * (1.0 + (FAST - 1.0) * steep * climbing)
         ahead = "upper" if self.direction > 0 else "lower"
-        if along < -K_SLOPE * se and not self.ripple_whole:
-            return  # part of a revolution's ripple may speed a climb up, not turn a leg round
         if along < -K_SLOPE * se:  # the power falls this way: the top is behind
+            if not self.ripple_whole:
+                return  # part of a revolution's ripple may speed a climb up, not turn a leg
             self.dropped.add(ahead)
             if len(self.dropped) == 2:
                 self._start_refine(t)

@@ -55,9 +55,9 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   search's vertex with that vertex's standard error (at least PRECISION·θ: a vertex the search
   knew to 6 % is no 2 % fact), the optimum a random walk of WANDER·θ per √s, each refit a
   measurement of variance σv²·track_memory/REFIT (the windows overlap: a refit brings
-  REFIT/track_memory of new data). On a clean signal
-  θ follows within seconds; on a noisy one it moves only as the evidence accumulates, so
-  noise does not make it wander. At most ``RATE``·θ per second;
+  REFIT/track_memory of new data). On a clean signal θ follows within seconds; on a noisy
+  one it moves only as the evidence accumulates, so noise does not make it wander. At most
+  ``RATE``·θ per second;
 - the slope decides when the vertex cannot (:meth:`Tracker._slope_step`): with the search's
   curvature held, the vertex now is u ± σu, and |u − θ| > K_SLOPE·σu means the slope at θ
   rejects θ as the optimum. On a flat top σu is 20-30 % of θ at every refit (the filter
