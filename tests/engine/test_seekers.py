@@ -450,9 +450,11 @@ def test_the_track_phase_knows_theta_as_well_as_the_search_knew_its_vertex() -> 
         assert math.sqrt(tracker.var) == pytest.approx(sd)
 
 
-def _slow_stroke_session(user: dict, bracket: list[float], seed: int, seconds: float) -> tuple:
-    """(t, wd, γ) of a default session and when the stroke first turned a whole revolution
-    after the start delay."""
+def _slow_stroke_session(
+    user: dict, bracket: list[float], seed: int, seconds: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """(t, wd, γ) of a default session, its start delay, and when the stroke first turned a
+    whole revolution after it."""
     from sessions.simulation import run_simulation
 
     cfg = parse_session_config(
@@ -462,7 +464,7 @@ def _slow_stroke_session(user: dict, bracket: list[float], seed: int, seconds: f
     t, q = r.column("t"), r.column("q")
     k0 = int(np.searchsorted(t, cfg.seeker.start_delay))
     turned = float(t[k0 + int(np.searchsorted(q[k0:] - q[k0], 2.0 * math.pi))])
-    return t, r.column("wd"), r.column("gamma"), turned
+    return t, r.column("wd"), r.column("gamma"), cfg.seeker.start_delay, turned
 
 
 @pytest.mark.parametrize("seed", [2, 3])
@@ -474,7 +476,7 @@ def test_a_slow_strokes_first_leg_climbs_before_a_whole_revolution(seed: int) ->
     # speeds the leg up: 5.5 s.
     user = {"kind": "table", "points": log_top_table(2.9, 6.0, 0.38, 2.0), "noise": 0.01,
             "ripple": 0.11}  # fmt: skip
-    t, wd, _, turned = _slow_stroke_session(user, [1.2, 1.6, 5.2], seed, 8.0)
+    t, wd, _, _, turned = _slow_stroke_session(user, [1.2, 1.6, 5.2], seed, 8.0)
     assert turned > 5.0  # the premise: a slow stroke
     reached = float(t[np.argmax(wd >= 0.9 * 2.9)])
     assert reached <= 6.0
@@ -488,8 +490,8 @@ def test_half_a_revolution_turns_no_leg_round(seed: int) -> None:
     # 35 s. A fall turns a leg only once the ripple is learnt over a whole revolution.
     user = {"kind": "table", "points": log_top_table(2.1, 5.0, 0.6, 4.0), "noise": 0.034,
             "ripple": 0.12}  # fmt: skip
-    t, _, gamma, turned = _slow_stroke_session(user, [0.73, 1.22, 3.2], seed, 12.0)
-    start = t > 1.5
+    t, _, gamma, delay, turned = _slow_stroke_session(user, [0.73, 1.22, 3.2], seed, 12.0)
+    start = t > delay
     down = np.flatnonzero(start[1:] & (np.diff(gamma) < -1e-9))  # γ moving down: turned
     assert len(down) == 0 or float(t[down[0] + 1]) >= turned
 
