@@ -3,21 +3,17 @@ t_99 it reports beside t_99, checked against its definition on the user's true p
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sessions.simulation import run_simulation, score
+from testing.benchmarks import ROOT, load
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "convergence.py"
-_spec = importlib.util.spec_from_file_location("benchmark_convergence", SCRIPT)
-assert _spec is not None and _spec.loader is not None
-convergence = importlib.util.module_from_spec(_spec)  # by path: benchmarks/ stays off sys.path
-_spec.loader.exec_module(convergence)
+convergence = load("convergence")
+SCRIPT = ROOT / "convergence.py"
 
 
 @pytest.mark.parametrize(
