@@ -11,4 +11,5 @@
     postgres      a throwaway PostgreSQL cluster
     docker        a Docker engine of the suite's own, a base image made without a registry
     exports       simulated sessions, long ones tiled, for the export tests and benchmarks
+    benchmarks    a benchmark script as a module (its simulated people), for the tests
 """
