@@ -449,9 +449,8 @@ class SweepSeeker(Seeker):
         # the target stops at the span's end and wd approaches it from inside: a tolerance
         near = max(0.1 * (hi - lo), 0.005 * hi)
         done = self.wd >= hi - near if self.direction > 0 else self.wd <= lo + near
-        # the pass ends once wd is near its far end, a bound or not (the candidate is at a
-        # bound long before wd: a pass that ended there ended at once, and so did the next,
-        # every 0.2 s; the search settled on the bound: #2 of seed 16 at sweep_rate 0.2)
+        # a bound too: a pass that ended with the candidate there ended at once, and so did
+        # the next, every 0.2 s (docs/benchmarks.md, "A pass whose far end is a bound")
         if done:
             self._next_pass(t)
 
