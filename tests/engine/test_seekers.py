@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 from sessions.config import SeekerConfig, parse_session_config
 from sessions.seekers import make_seeker
 from sessions.seekers.parabolic import parabola_vertex, step7
+from sessions.seekers.sweep import SweepSeeker
 from sessions.seekers.tracker import Tracker
 
 pos = st.floats(0.2, 10.0)
@@ -496,6 +498,15 @@ def test_half_a_revolution_turns_no_leg_round(seed: int) -> None:
     assert len(down) == 0 or float(t[down[0] + 1]) >= turned
 
 
+def _stepped(seeker: SweepSeeker, periods: int) -> Iterator[int]:
+    """Each period's index, once the candidate has advanced and the filter has stepped
+    towards it (the sweep's search outside its decisions)."""
+    for k in range(periods):
+        seeker._advance_candidate()
+        seeker.hold(0.0)
+        yield k
+
+
 def test_a_refine_pass_entering_its_span_never_aims_past_its_far_end() -> None:
     # wd below a pass's span (the locate leg overshot the top): the candidate may run ahead
     # of wd by the filter's lag while it climbs, but not past the span's far end, else the
@@ -508,9 +519,7 @@ def test_a_refine_pass_entering_its_span_never_aims_past_its_far_end() -> None:
     seeker.stage, seeker.span, seeker.direction = "refine", (2.5, 2.8), 1.0
     seeker.rate = cfg.sweep_rate * FAST
     targets, wds = [], []
-    for _ in range(6000):
-        seeker._advance_candidate()
-        seeker.hold(0.0)  # the filter steps towards the target
+    for _ in _stepped(seeker, 6000):
         targets.append(seeker.target)
         wds.append(seeker.wd)
     assert max(targets) <= 2.8 + 1e-12
@@ -530,9 +539,7 @@ def test_a_pass_whose_far_end_is_a_bound_ends_when_wd_gets_there() -> None:
     seeker.passes, seeker.best_w = 1, 1.15
     seeker.target = 2.999
     passes = []
-    for k in range(8000):
-        seeker._advance_candidate()
-        seeker.hold(0.0)
+    for k in _stepped(seeker, 8000):
         if k % 200 == 199:
             seeker._refine_step(k * 1e-3)
             passes.append((seeker.wd, seeker.passes))
