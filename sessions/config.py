@@ -160,6 +160,16 @@ class UserConfig(StrictModel):
         return self
 
 
+KS = 20.0  # RISE's default ks: it holds a person whose torque rises with the velocity by up
+# to (ks + 1)(1 − αr·dt) N·m·s/rad (docs/engine.md, "ks = 20, not 4")
+
+
+def default_ks(alpha_r: float, inertia: float, rate: float) -> float:
+    """RISE's ks when none is set: KS, or at a rate too slow for it the most the loop holds
+    with the margin (:func:`sessions.stability.max_ks`, rounded down: 4.208 at 50 Hz)."""
+    return min(KS, math.floor(stability.max_ks(alpha_r, inertia, 1.0 / rate) * 1e3) / 1e3)
+
+
 class ControllerConfig(StrictModel):
     """Controller A, eq. (7) ("measured"), or controller B, eq. (23) ("rise").
 
@@ -168,7 +178,11 @@ class ControllerConfig(StrictModel):
     sign-integral ripple within 1/20 of the torque limit."""
 
     kind: Literal["rise", "measured"] = "rise"
-    ks: Positive = Field(4.0, description="RISE gain ks (23); (ks + 1)·dt/J ≤ 2/(2 − αr·dt)")
+    ks: Positive = Field(
+        KS,
+        description="RISE gain ks (23); (ks + 1)·dt/J ≤ 2/(2 − αr·dt); left out: 20, or the most "
+        "the loop holds at a slower rate",
+    )
     beta: Positive = Field(0.5, description="RISE β1 + β2 (23), N·m/s; ripple ≤ 1/20 torque limit")
     alpha_r: Positive = Field(4.0, description="RISE αr (15), 1/s; αr·dt ≤ 1/2")
     k: Positive = Field(1.0, description="measured-torque gain k (7), N·m·s/rad; k·dt/J ≤ 1")
@@ -333,6 +347,16 @@ class SessionConfig(StrictModel):
                 f"seeker.amplitude: γ3 + ae = {top + self.seeker.amplitude:g} must be below "
                 f"machine.max_velocity = {self.machine.max_velocity}"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _default_ks(self) -> SessionConfig:
+        """ks left at its default: :func:`default_ks` at this rate and inertia."""
+        c = self.controller
+        if "ks" not in c.model_fields_set:
+            ks = default_ks(c.alpha_r, self.machine.inertia, self.rate)
+            if ks != c.ks:
+                object.__setattr__(self, "controller", c.model_copy(update={"ks": ks}))
         return self
 
     @model_validator(mode="after")

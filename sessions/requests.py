@@ -61,7 +61,7 @@ class LimitsIn(Request):
 START_EXAMPLE: dict[str, Any] = {
     "user_id": 1,
     "duration": 120.0,
-    "controller": {"kind": "rise", "ks": 4.0, "beta": 0.5, "alpha_r": 4.0},
+    "controller": {"kind": "rise", "beta": 0.5, "alpha_r": 4.0},
     "seeker": {"kind": "brent"},
     "limits": {"max_torque": 15.0},
 }

@@ -57,8 +57,9 @@ Numbers with J = 0.1 kg·m², αr = 4 1/s (the default):
     50 Hz     10 / 5 N·m·s/rad               9.417 / 4.208
     1 kHz     200 / 100                      199.4 / 99.20
     5 kHz     1000 / 500                     999.4 / 499.2
-The defaults (k = 1, ks = 4, αr = 4, β = 0.5) hold at every rate from 50 Hz: at 50 Hz RISE's
-g = 1.0 ≤ 2/(2 − 0.08) = 1.042, αr·dt = 0.08 ≤ 0.5, and β's ripple is ±0.014 N·m.
+The defaults (k = 1, ks = 20, αr = 4, β = 0.5) hold at every rate from 50 Hz: below about
+210 Hz ks is lowered to the largest accepted (config.default_ks; 4.208 at 50 Hz, where RISE's
+g = 2/(2 − 0.08) = 1.042, αr·dt = 0.08 ≤ 0.5, and β's ripple is ±0.014 N·m).
 
 Beyond the controllers (the reference must be one the loop can follow):
 - trajectory filter (32)/(33): its discretisation is exact (filters.py), stable at any p·dt;

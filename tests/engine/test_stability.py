@@ -147,6 +147,36 @@ def test_the_defaults_hold_at_every_rate_with_poles_inside_the_margin(rate: floa
     parse({"rate": rate, "controller": {"kind": "measured"}, "seeker": {"kind": seeker}})
 
 
+def test_the_default_ks_is_the_stiff_one_or_the_most_a_slower_loop_holds() -> None:
+    # (S5) written out: (ks + 1)·dt/J ≤ 2/(2 − αr·dt), at 50 Hz ks ≤ 4.208
+    assert parse({}).controller.ks == 20.0
+    slow = parse({"rate": 50.0}).controller
+    assert slow.ks == pytest.approx(2.0 / (2.0 - 4.0 / 50.0) * J * 50.0 - 1.0, abs=1e-3)
+    assert slow.ks <= 2.0 / (2.0 - 4.0 / 50.0) * J * 50.0 - 1.0
+    # what a person sets is kept (and refused if the loop cannot hold it)
+    assert parse({"rate": 50.0, "controller": {"ks": 3.0}}).controller.ks == 3.0
+    assert parse(parse({"rate": 50.0}).model_dump()).controller.ks == slow.ks
+
+
+def test_the_default_rise_holds_a_person_whose_torque_rises_with_the_velocity() -> None:
+    """A torque rising by s = 15 N·m·s/rad (the low flank of a sharp top): RISE's error needs
+    (ks + 1)(1 − αr·dt) > s (S3). The default holds the handle on wd; ks = 4, the default
+    before, let it swing by ±2 rad/s around a 1.5 rad/s setpoint."""
+    ramp = [[1.0 + 0.1 * i, 2.0 + 1.5 * i] for i in range(11)]  # dτ/dw = 15 from 1 to 2 rad/s
+    user = {"kind": "table", "points": [[0.0, 2.0], *ramp, [3.0, 5.0], [4.0, 0.0]]}
+    seeker = {"kind": "fixed", "setpoint": 1.5, "bracket": [0.5, 1.5, 3.5]}
+    spread = {}
+    for ks in (None, 4.0):
+        ctl = {} if ks is None else {"ks": ks}
+        cfg = parse({"duration": 6.0, "user": user, "controller": ctl, "seeker": seeker})
+        res = run_simulation(cfg)
+        t, e = res.column("t"), res.column("w") - res.column("wd")
+        spread[ks] = float(np.abs(e[t > 4.0]).max())
+    assert (20.0 + 1.0) * (1.0 - 4.0 / 1000.0) > 15.0 > (4.0 + 1.0)
+    assert spread[None] < 0.01
+    assert spread[4.0] > 0.5
+
+
 # -- the bound is the loop's: the closed form against the implemented one-period map -------------
 def one_period_map(ctrl, rate: float, user: UserConfig, w: float, integral: float | None):
     dt = 1.0 / rate

@@ -24,7 +24,7 @@ from pydantic import ValidationError
 
 from server.service import BusyError
 from sessions.codes import LATCHED
-from sessions.config import ControllerConfig, SeekerConfig
+from sessions.config import ControllerConfig, SeekerConfig, default_ks
 from sessions.experiments import BRACKETS, PAPER_GAINS
 from sessions.requests import LimitsIn, RequestError, SessionStart, auto_bracket
 from sessions.store import (
@@ -183,7 +183,8 @@ class LiveTab:
         defaults = ControllerConfig()
         with gui.add_folder("Gains", expand_by_default=False):
             gain = {"min": 0.001, "step": 0.001}
-            self.ks = gui.add_number("ks", defaults.ks, **gain)
+            ks = default_ks(defaults.alpha_r, float(settings.inertia), float(settings.rate))
+            self.ks = gui.add_number("ks", ks, **gain)
             self.beta = gui.add_number("β1+β2 (N·m/s)", defaults.beta, **gain)
             self.alpha_r = gui.add_number("αr (1/s)", defaults.alpha_r, **gain)
             self.k = gui.add_number("k (N·m·s/rad)", defaults.k, **gain)
@@ -219,6 +220,8 @@ class LiveTab:
         name = PRESETS[self.preset.value]
         if name is None:
             gains = ControllerConfig().model_dump()
+            rig = self.ctx.settings
+            gains["ks"] = default_ks(gains["alpha_r"], float(rig.inertia), float(rig.rate))
             self.seeker.value, self.objective.value = DEFAULT_SEEKER, "power"
             self.bracket_mode.value = BRACKET_AUTO
         else:
