@@ -180,14 +180,13 @@ class LiveTab:
         self.g1 = gui.add_number("γ1 (rad/s)", lo, **g)
         self.g2 = gui.add_number("γ2 (rad/s)", mid, **g)
         self.g3 = gui.add_number("γ3 (rad/s)", hi, **g)
-        defaults = ControllerConfig()
+        defaults = self._default_gains()
         with gui.add_folder("Gains", expand_by_default=False):
             gain = {"min": 0.001, "step": 0.001}
-            ks = default_ks(defaults.alpha_r, float(settings.inertia), float(settings.rate))
-            self.ks = gui.add_number("ks", ks, **gain)
-            self.beta = gui.add_number("β1+β2 (N·m/s)", defaults.beta, **gain)
-            self.alpha_r = gui.add_number("αr (1/s)", defaults.alpha_r, **gain)
-            self.k = gui.add_number("k (N·m·s/rad)", defaults.k, **gain)
+            self.ks = gui.add_number("ks", defaults["ks"], **gain)
+            self.beta = gui.add_number("β1+β2 (N·m/s)", defaults["beta"], **gain)
+            self.alpha_r = gui.add_number("αr (1/s)", defaults["alpha_r"], **gain)
+            self.k = gui.add_number("k (N·m·s/rad)", defaults["k"], **gain)
         with gui.add_folder("Limits", expand_by_default=False):
             top_u, top_w = float(settings.max_torque), float(settings.max_velocity)
             self.max_torque = gui.add_number(
@@ -216,12 +215,17 @@ class LiveTab:
     def _show_controller(self) -> None:
         self.controller_help.show(md("{}", CONTROLLERS.get(self.controller.value, "?")))
 
+    def _default_gains(self) -> dict[str, Any]:
+        """The engine's default gains, ks as this rig's loop rate holds it."""
+        gains = ControllerConfig().model_dump()
+        rig = self.ctx.settings
+        gains["ks"] = default_ks(gains["alpha_r"], float(rig.inertia), float(rig.rate))
+        return gains
+
     def _apply_preset(self) -> None:
         name = PRESETS[self.preset.value]
         if name is None:
-            gains = ControllerConfig().model_dump()
-            rig = self.ctx.settings
-            gains["ks"] = default_ks(gains["alpha_r"], float(rig.inertia), float(rig.rate))
+            gains = self._default_gains()
             self.seeker.value, self.objective.value = DEFAULT_SEEKER, "power"
             self.bracket_mode.value = BRACKET_AUTO
         else:
