@@ -109,9 +109,21 @@ def test_the_protocol_runs_to_rest_and_its_phases_are_stored(
     assert warm["t_start"] == 0.0 and warm["t_end"] == pytest.approx(5.0)
     assert seek["t_end"] - seek["t_start"] < 60.0
     # tracked through the training (the seeker's track phase): the optimum at its end is the
-    # session's, and the search's own is close to it
+    # session's, and both the search's own and where the tracking ended are within the
+    # person's 99 % band (a flat Hill top, where ±13 % in w costs 0.7 % of the power: the
+    # track phase wanders that far over noise seeds 1, 2, 3 and 5, either way; brent's own
+    # ended 11 % high on seed 2). The Hill curve written out, τ = τ0 (wmax − w)/(wmax + w/a),
+    # its power maximised on a grid.
     assert train["optimum_w"] == pytest.approx(s["optimum_w"])
-    assert seek["optimum_w"] == pytest.approx(s["optimum_w"], rel=0.05)
+    w = np.linspace(0.01, HILL["wmax"] - 0.01, 200_000)
+
+    def power(v: np.ndarray) -> np.ndarray:
+        a, tau0, wmax = HILL["curvature"], HILL["tau0"], HILL["wmax"]
+        return v * tau0 * (wmax - v) / (wmax + v / a)
+
+    p_star = float(power(w).max())
+    assert float(power(np.array([seek["optimum_w"]]))[0]) >= 0.99 * p_star
+    assert float(power(np.array([s["optimum_w"]]))[0]) >= 0.99 * p_star
     # converged inside the bracket: no phase's optimum is an edge
     assert [p["at_bound"] for p in phases] == [None] * 4 and s["at_bound"] is None
     assert train["t_end"] - train["t_start"] == pytest.approx(2.0 + 2 * 20.0)
