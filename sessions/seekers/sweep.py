@@ -72,7 +72,7 @@ from sessions.seekers.regression import (
     smooth_top,
     without_ripple,
 )
-from sessions.seekers.tracker import Tracker
+from sessions.seekers.tracker import Tracker, shrunk_curvature
 
 REFIT = 0.2  # s between decisions
 REPORT = 1.0  # s between the evaluations the sweep records
@@ -500,7 +500,9 @@ class SweepSeeker(Seeker):
         self.done = True
         if self.cfg.track:
             f = self.fit_top
-            curv = f.curvature[0] if f is not None and f.concave(2.0) else None
+            curv = None
+            if f is not None and f.concave(2.0):  # as sure as the search was of it
+                curv = shrunk_curvature(*f.curvature, f.value(self.optimum), self.optimum)
             noise = (f.sigma, f.inflate) if f is not None else None
             vertex_se = f.vertex()[1] if curv is not None and f is not None else None
             assert self.optimum is not None

@@ -358,7 +358,10 @@ def test_a_small_dither_does_not_read_the_persons_fluctuation_as_a_slope() -> No
     # noise, and the slope it read walked θ up: +14 %, +2.4 % and +2.2 % above w* over the
     # track phase on noise seeds 1, 3 and 6 (+6.2 % on average). Averaged over track_memory,
     # θ scatters by about 1 % around w* from one noise seed to the next (six seeds, the
-    # RISE default: −0.4 %, +0.3 %, −0.4 %, −0.6 %, −1.7 %, +2.0 %; mean −0.1 %).
+    # RISE default: −0.4 %, +0.3 %, −0.4 %, −0.6 %, −1.7 %, +2.0 %; mean −0.1 %). With the
+    # search's curvature shrunk where it saw it at less than 3 standard errors (seed 6: the
+    # tracker then holds this sharp top a little flatter, and under a dither held at 1 % its
+    # vertices scatter more) seed 6 sits at +5.4 %; the mean, what the walk moved, at +0.5 %.
     from sessions.simulation import run_simulation
 
     user = {"kind": "table", "points": log_top_table(3.0, 30.0, 0.35, 2.0), "noise": 0.05}
@@ -379,7 +382,7 @@ def test_a_small_dither_does_not_read_the_persons_fluctuation_as_a_slope() -> No
         tracked = np.array([ev.candidate for ev in r.evaluations if ev.t >= sm.t_converged + 10.0])
         assert len(tracked) > 60
         off.append(float(tracked.mean()) / w_star - 1.0)
-        assert abs(off[-1]) <= 0.03
+        assert abs(off[-1]) <= 0.06
         assert r.user.power_ratio(np.array([sm.optimum_w]), np.array([120.0]))[0] >= 0.99
     assert abs(float(np.mean(off))) <= 0.01
 
@@ -699,3 +702,60 @@ def test_the_dither_spreads_w_more_than_a_sine_for_the_same_excursion() -> None:
     peak = float(np.max(np.abs(x)))
     assert peak <= 0.8 * a  # no farther than a sine of amplitude a through the filter
     assert float(np.mean(x * x)) / peak**2 > 0.54  # a sine's: 0.5
+
+
+def test_the_searchs_curvature_is_kept_as_well_as_it_was_known() -> None:
+    # At θ = 5 with p = 10: the generic top's curvature is −0.8 (sharpness 1). A sharp top's
+    # curvature (sharpness 4) known to 10 % or to 30 % is kept as it is; the same known to
+    # 40 % (2.5 standard errors) moves towards the generic but stays sharper than half
+    # itself; a sharp-looking 16× the generic known to 40 % (sharp-looking noise a stopping
+    # rule stopped on) comes within 4× the generic. Always between the two.
+    from sessions.seekers.tracker import generic_curvature, shrunk_curvature
+
+    g = generic_curvature(10.0, 5.0)
+    assert g == pytest.approx(-0.8)
+    sharp = 4.0 * g
+    assert shrunk_curvature(sharp, 0.1 * abs(sharp), 10.0, 5.0) == sharp
+    assert shrunk_curvature(sharp, 0.3 * abs(sharp), 10.0, 5.0) == sharp
+    loose = shrunk_curvature(sharp, 0.4 * abs(sharp), 10.0, 5.0)
+    assert 0.5 * sharp > loose > sharp
+    noise = shrunk_curvature(16.0 * g, 0.4 * 16.0 * abs(g), 10.0, 5.0)
+    assert 4.0 * g < noise < g
+    for c, se in ((0.2 * g, 0.1), (3.0 * g, 1.0), (30.0 * g, 10.0)):
+        s = shrunk_curvature(c, se, 10.0, 5.0)
+        assert min(c, g) <= s <= max(c, g)
+
+
+def test_a_curvature_the_search_barely_saw_does_not_hold_theta_off_the_top() -> None:
+    # A skewed top, steep below w* (s = 0.3 on a log axis) and flat above (s = 0.7): its 99 %
+    # band −4 %/+10 % (#67 of the benchmark's seed 21, its curve, noise and seed, steady).
+    # The sweep converged at +16 % on rows that never went below +7 %, with a curvature 2.4
+    # standard errors from zero and 18× the top's there. Held by the tracker it kept the
+    # dither at 1.4 % (the cost cap of so sharp a top) and read every refit's vertex within
+    # 1 % of θ: θ stayed 12-16 % above w* to the end, the stored optimum at p/p* 0.984.
+    # Shrunk towards a generic top by its standard error, the curvature sizes a 4 % dither
+    # and θ comes down.
+    from sessions.simulation import run_simulation
+
+    w = np.linspace(0.15, 3.2, 60) * 5.5
+    x = np.log(w / 5.5)
+    p = 14.5 * np.exp(-((x / np.where(x < 0.0, 0.3, 0.7)) ** 2) / 2.0)
+    points = [[0.0, float(p[0] / w[0])]] + [
+        [float(a), float(b / a)] for a, b in zip(w, p, strict=True)
+    ]
+    cfg = parse_session_config(
+        {
+            "duration": 120.0,
+            "seed": 1826872875,
+            "user": {"kind": "table", "points": points, "noise": 0.06, "ripple": 0.05},
+            "seeker": {"kind": "sweep", "bracket": [4.0, 6.84, 10.0]},
+        }
+    )
+    r = run_simulation(cfg)
+    sm, w_star = r.summary, r.user.w_star()
+    assert w_star == pytest.approx(5.5, rel=0.01)
+    assert sm is not None and sm.t_converged is not None
+    late = np.array([ev.candidate for ev in r.evaluations if ev.t >= 90.0])
+    assert len(late) > 20
+    assert float(late.mean()) / w_star - 1.0 <= 0.10
+    assert r.user.power_ratio(np.array([sm.optimum_w]), np.array([120.0]))[0] >= 0.99
