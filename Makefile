@@ -30,7 +30,8 @@ lint: setup
 ## worker lost after 3 s without a heartbeat, not 0.1 s: three rooms on two cores stall a
 ## worker past 100 ms now and then (CI, 2026-12-02), and past 1 s with the Docker images
 ## building beside them (2026-12-07: two worker tests read 'lost' where they expected their
-## fault), and no test there times liveness (the hung-worker tests are `realtime`, run alone
+## fault; the tests that start a worker themselves take it too, `testing.live.worker_options`),
+## and no test there times liveness (the hung-worker tests are `realtime`, run alone
 ## at the default). Beside the parallel part, at
 ## nice 19, the Docker smoke test's images are built into its cache (`python -m
 ## testing.docker prepare`, 100 s on a new machine, 10 s once cached; log in

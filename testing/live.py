@@ -8,6 +8,7 @@ pseudo-terminal with the emulator in its own process. Waits are bounded and gene
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -17,9 +18,24 @@ import numpy as np
 from sessions.config import SessionConfig, parse_session_config
 from sessions.machine import MachineSpec
 from sessions.machine.odrive.emulator import EmulatorConfig
-from sessions.worker import Event, RingReader, SessionEnded, Worker
+from sessions.worker import Event, RingReader, SessionEnded, Worker, WorkerOptions
 
 EMULATED_KT = EmulatorConfig().torque_constant  # the emulated motor's torque constant, N·m/A
+
+# the server's setting worker.heartbeat_timeout, as the environment names it
+HEARTBEAT_ENV = "ERGOSEEK_WORKER__HEARTBEAT_TIMEOUT"
+
+
+def worker_options(**over: Any) -> WorkerOptions:
+    """The worker's options for a test that starts a worker itself: the defaults, with the
+    heartbeat timeout the suite's part runs its servers with (``HEARTBEAT_ENV``, set by
+    ``make test`` for the parallel rooms: three of them on two cores stall a worker past the
+    default 100 ms, and a test provoking a fault then reads ``lost``), the default where it is
+    not set (the realtime part, where liveness is timed)."""
+    if HEARTBEAT_ENV in os.environ and "heartbeat_timeout" not in over:
+        over["heartbeat_timeout"] = float(os.environ[HEARTBEAT_ENV])
+    return WorkerOptions(**over)
+
 
 # A Hill user found by Brent in a few seconds: fast filter, short windows, noise-free.
 QUICK_SEEK: dict[str, Any] = {

@@ -8,12 +8,13 @@ from collections.abc import Iterator
 
 import pytest
 
-from sessions.worker import Worker, WorkerOptions
+from sessions.worker import Worker
+from testing.live import worker_options
 
 
 @pytest.fixture(scope="module")
 def worker() -> Iterator[Worker]:
-    with Worker(options=WorkerOptions()) as w:
+    with Worker(options=worker_options()) as w:
         ready = w.start()
         assert ready is not None and ready.fault is None and ready.machine == "sim"
         yield w

@@ -13,9 +13,9 @@ import time
 
 import pytest
 
-from sessions.worker import Worker, WorkerError, WorkerOptions
+from sessions.worker import Worker, WorkerError
 from sessions.worker.ring import INDEX
-from testing.live import follow, scenario, wait_for
+from testing.live import follow, scenario, wait_for, worker_options
 from testing.processes import exited
 
 # the dead and hung worker's detection is timed where it happens: those two run alone, after
@@ -23,7 +23,7 @@ from testing.processes import exited
 
 
 def _start(duration: float = 30.0) -> tuple[Worker, object]:
-    worker = Worker(options=WorkerOptions())
+    worker = Worker(options=worker_options())
     worker.start()
     reader = worker.open_reader()
     worker.start_session(scenario(duration=duration), "victim")

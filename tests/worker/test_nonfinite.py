@@ -18,17 +18,17 @@ from sessions.codes import FLAG_FAULT
 from sessions.loop import Loop
 from sessions.machine import MachineSpec, SimFault
 from sessions.machine.sim import SimMachine
-from sessions.worker import Worker, WorkerOptions
+from sessions.worker import Worker
 from sessions.worker.ring import INDEX
 from sessions.worker.supervisor import Supervisor
-from testing.live import follow, scenario
+from testing.live import follow, scenario, worker_options
 
 AT = 3.0  # s: the fault's start (after all of the next session: 0.2 s, then its wind-down)
 
 
 def _run(kind: str, **cfg: object):
     spec = MachineSpec(kind="sim", sim_fault=SimFault(kind=kind, at=AT))
-    with Worker(spec, WorkerOptions()) as worker:
+    with Worker(spec, worker_options()) as worker:
         worker.start()
         reader = worker.open_reader()
         worker.start_session(scenario(duration=30.0, **cfg), kind)

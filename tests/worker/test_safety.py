@@ -21,17 +21,25 @@ import pytest
 from sessions.codes import FLAG_ESTOP, TORQUE_LIMIT
 from sessions.machine.odrive.emulator import EmulatorConfig, EmulatorProcess
 from sessions.simulation import run_simulation
-from sessions.worker import Worker, WorkerError, WorkerOptions
+from sessions.worker import Worker, WorkerError
 from sessions.worker.messages import StartSession
 from sessions.worker.ring import INDEX
 from testing.cli import ROOT
-from testing.live import OVERSPEED, PASSIVITY_BREACH, STRONG, follow, scenario, wait_for
+from testing.live import (
+    OVERSPEED,
+    PASSIVITY_BREACH,
+    STRONG,
+    follow,
+    scenario,
+    wait_for,
+    worker_options,
+)
 from testing.processes import exited
 
 
 def _one_session(cfg, name: str):  # type: ignore[no-untyped-def]
     """``cfg`` run as session ``name`` on a worker of its own, followed to its end."""
-    with Worker(options=WorkerOptions()) as worker:
+    with Worker(options=worker_options()) as worker:
         worker.start()
         reader = worker.open_reader()
         worker.start_session(cfg, name)
@@ -41,7 +49,7 @@ def _one_session(cfg, name: str):  # type: ignore[no-untyped-def]
 
 
 def test_estop_zeroes_torque_within_two_periods_and_latches():
-    with Worker(options=WorkerOptions()) as worker:
+    with Worker(options=worker_options()) as worker:
         worker.start()
         reader = worker.open_reader()
         worker.start_session(scenario(duration=30.0), "estop")
@@ -80,7 +88,7 @@ def test_estop_zeroes_torque_within_two_periods_and_latches():
 def test_a_start_or_a_reset_during_a_session_is_refused_by_the_worker_itself():
     # The handle refuses a second start first; the worker must refuse it too (another
     # parent, a race): the command is answered, named, timed, and the session goes on.
-    with Worker(options=WorkerOptions()) as worker:
+    with Worker(options=worker_options()) as worker:
         worker.start()
         reader = worker.open_reader()
         worker.start_session(scenario(duration=1.0), "first")
@@ -101,7 +109,7 @@ def test_a_start_or_a_reset_during_a_session_is_refused_by_the_worker_itself():
 
 
 def test_estop_while_idle_latches_too():
-    with Worker(options=WorkerOptions()) as worker:
+    with Worker(options=worker_options()) as worker:
         worker.start()
         worker.estop()
         follow(worker, until="estop")
