@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from server.settings import Settings
 from sessions.config import SessionConfig, parse_session_config
 from sessions.machine import MachineSpec
 from sessions.machine.odrive.emulator import EmulatorConfig
@@ -22,8 +23,10 @@ from sessions.worker import Event, RingReader, SessionEnded, Worker, WorkerOptio
 
 EMULATED_KT = EmulatorConfig().torque_constant  # the emulated motor's torque constant, N·m/A
 
-# the server's setting worker.heartbeat_timeout, as the environment names it
-HEARTBEAT_ENV = "ERGOSEEK_WORKER__HEARTBEAT_TIMEOUT"
+# the server's setting worker.heartbeat_timeout, as its settings name it in the environment
+HEARTBEAT_ENV = "{env_prefix}WORKER{env_nested_delimiter}HEARTBEAT_TIMEOUT".format(
+    **Settings.model_config
+)
 
 
 def worker_options(**over: Any) -> WorkerOptions:

@@ -196,9 +196,7 @@ class Tracker:
         """The first dither amplitude: what the search's noise asks for, within bounds."""
         theta = self.theta
         top = self._cap()
-        curv = self.curv
-        if curv is None and self.level is not None and self.level > 0.0:
-            curv = generic_curvature(self.level, theta)
+        curv = self._held(self.level)
         if self.noise is None or curv is None:  # unknown: start small, grow as the fit asks
             return min(MIN_DITHER * theta, top)
         sigma, inflate = self.noise
@@ -213,12 +211,19 @@ class Tracker:
         theta = self.theta
         top = self.amp * theta
         level = self.level if self.level is not None and self.level > 0.0 else None
-        curv = self.curv
-        if curv is None and level is not None:
-            curv = generic_curvature(level, theta)
+        curv = self._held(level)
         if curv is not None and level is not None:
             top = min(top, math.sqrt(2.0 * DITHER_COST * level / -curv))
         return top
+
+    def _held(self, level: float | None) -> float | None:
+        """The curvature the tracker holds: the search's, else a generic top's at ``level``
+        (None while the level is unknown)."""
+        if self.curv is not None:
+            return self.curv
+        if level is None or level <= 0.0:
+            return None
+        return generic_curvature(level, self.theta)
 
     def update(self, t: float) -> Evaluation | None:
         """A step towards the fitted vertex when one is due; the evaluation it records."""
@@ -298,7 +303,8 @@ class Tracker:
             return None
         level = self.level if self.level is not None and self.level > 0.0 else None
         level = level or max(float(np.mean(d[:, P])), 1e-9)
-        prior = self.curv if self.curv is not None else generic_curvature(level, theta)
+        prior = self._held(level)
+        assert prior is not None  # level > 0
         # within what a person's top can be: ½|p''|θ²/p between 0.1 and MAX_SHARPNESS
         sharp = 0.5 * -prior * theta**2 / level
         prior *= min(max(sharp, 0.1), MAX_SHARPNESS) / max(sharp, 1e-12)
