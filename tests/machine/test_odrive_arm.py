@@ -24,11 +24,16 @@ from sessions.machine.spec import UART_BAUDRATE
 from testing.live import odrive
 
 CFG = parse_session_config({"duration": 30.0, "machine": {"max_torque": 20.0}})
+# Generous link limits: these tests check what arming reads and writes, not how fast the drive
+# answers, and they run in the parallel rooms, where a loaded VM stalls the emulator's pty
+# past 100 ms (one did, on a clean clone's CI). A refusal still comes well before the
+# closed-loop timeout (2 s), which is what "refused at once" below tells apart.
+LINK = {"reply_timeout": 0.5, "watchdog_timeout": 1.0}
 
 
 def _arm_refused(rig: EmulatorConfig, match: str, **spec) -> str:
     with EmulatorProcess(rig) as emu:
-        m = make_machine(odrive(emu.path, reply_timeout=0.1, watchdog_timeout=0.5, **spec))
+        m = make_machine(odrive(emu.path, **LINK, **spec))
         try:
             m.connect()
             t0 = time.monotonic()
@@ -77,9 +82,7 @@ def _ask(port: serial.Serial, line: bytes) -> bytes:
 
 def test_arm_sets_the_overspeed_tolerance_and_reads_it_back():
     with EmulatorProcess(EmulatorConfig()) as emu:
-        m = make_machine(
-            odrive(emu.path, reply_timeout=0.1, watchdog_timeout=0.5, vel_limit_tolerance=1.1)
-        )
+        m = make_machine(odrive(emu.path, **LINK, vel_limit_tolerance=1.1))
         m.connect()
         m.arm(CFG)
         m.close()
@@ -105,7 +108,7 @@ def test_arming_clears_only_its_own_axis_where_the_firmware_allows(rig, kept):
         with serial.Serial(emu.path, timeout=0) as port:
             port.write(b"w axis1.controller.error 1\nw axis0.encoder.error 4\n")
             assert _ask(port, b"r axis1.controller.error\n") == b"1\r\n"
-        m = make_machine(odrive(emu.path, reply_timeout=0.1, watchdog_timeout=0.5))
+        m = make_machine(odrive(emu.path, **LINK))
         m.connect()
         m.arm(CFG)  # axis0's own error is cleared either way
         notes = list(m.notes)
