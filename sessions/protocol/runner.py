@@ -114,6 +114,8 @@ class ProtocolRunner:
         # no protocol: the seek lasts until the worker winds it down (the duration reached),
         # so a simulation for the duration is the seeker's alone, to its last sample
         self.open_ended = cfg.protocol is None
+        if self.open_ended:  # the session's end is the seek's: its track phase ends on θ there
+            seeker.ends_at = cfg.duration
         self.seeker = seeker
         self.dt = cfg.dt
         self.bracket = cfg.seeker.bracket
@@ -206,6 +208,7 @@ class ProtocolRunner:
         """The seeker has converged: the seek phase ends after its hold."""
         self.until_converged = False
         self.k_end = min(self.k_end, j + self.seek_hold)
+        self._tell_seek_end()
 
     def _next(self, j: int) -> None:
         """The segment is over (or a stop was asked for): the next one begins at period j."""
@@ -257,6 +260,16 @@ class ProtocolRunner:
         self.effort = 0.0
         self.k0, self.k_end = j, 2**62
 
+    def _tell_seek_end(self) -> None:
+        """Tell the seeker when a protocol's seek phase ends, unless the next phase follows
+        its optimum on: its track phase then ends on the optimum, the one stored and trained
+        at (without a protocol the session's duration, told at the start)."""
+        if self.open_ended:
+            return
+        nxt = self.phases[self.phase + 1] if self.phase + 1 < len(self.phases) else None
+        tracked = isinstance(nxt, Train) and nxt.track and nxt.velocity is None
+        self.seeker.ends_at = math.inf if tracked else self.k_end * self.dt
+
     def _train_velocity(self, ph: Train) -> float:
         if ph.velocity is not None:
             return ph.velocity
@@ -299,6 +312,9 @@ class ProtocolRunner:
             self.wd, self.ad, self.jd = s.wd, s.ad, s.jd  # the seeker's reference, as it began
             self.target = gamma = s.target
             self.effort = 1.0
+            self._tell_seek_end()
+        elif mode == TRACK:  # the protocol goes on: the track phase keeps learning
+            self.seeker.ends_at = math.inf
         elif mode == RAMP:
             self.gamma0 = self.wd
             self.slope = (gamma - self.wd) / n

@@ -98,7 +98,7 @@ class Seeker:
         "cfg", "dt", "lo", "hi", "outer", "wd", "ad", "jd", "target", "phase", "done",
         "reason", "evaluations", "bracket", "bracket0", "optimum", "optimum_power",
         "at_bound", "t_converged", "w_converged", "p_converged", "nonfinite", "tracking",
-        "velocity_abscissa",
+        "velocity_abscissa", "ends_at",
     )  # fmt: skip
 
     def __init__(self, cfg: SeekerConfig, dt: float, max_velocity: float) -> None:
@@ -131,6 +131,9 @@ class Seeker:
         self.nonfinite = 0
         self.tracking = False
         self.velocity_abscissa = cfg.measure == "velocity"
+        # s: when the reference is taken from it and nothing follows that it learns for (its
+        # seek's end, the session's duration: the runner's); the track phase ends on θ there
+        self.ends_at = math.inf
 
     # -- bounds ----------------------------------------------------------------------------
     def clamp(self, v: float) -> float:

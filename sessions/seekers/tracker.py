@@ -183,9 +183,12 @@ class Tracker:
         owner.optimum = self.theta
 
     def target(self, t: float) -> float:
-        """The candidate at time t: θ with the dither, inside the bounds."""
+        """The candidate at time t: θ with the dither, inside the bounds; the dither ramped in
+        over its first period and out over the half-period before the last one before
+        ``ends_at`` (the session ends on θ: the module's docstring)."""
         x = t - self.t0
         a = self.amplitude() * smoothstep(x / self.period)
+        a *= smoothstep(2.0 * (self.owner.ends_at - t) / self.period - 1.0)
         side = math.copysign(1.0, math.sin(self.omega * x))
         return self.owner.clamp(self.theta + SQUARE * a * side)
 

@@ -126,6 +126,38 @@ def test_training_without_tracking_holds_the_optimum_found() -> None:
         assert float(c["w"][window].mean()) == pytest.approx(found, rel=0.02)
 
 
+@pytest.mark.parametrize(
+    ("after", "ends_at"),
+    [
+        ({"kind": "cooldown", "duration": 8.0}, 40.0),
+        ({"kind": "train", "intervals": 1, "work": 10.0, "rest": 10.0, "track": False}, 40.0),
+        ({"kind": "train", "intervals": 1, "work": 10.0, "rest": 10.0}, math.inf),
+    ],
+    ids=["cooldown", "train-held", "train-tracked"],
+)
+def test_a_seek_phase_ends_on_its_optimum_unless_training_tracks_it_on(
+    after: dict, ends_at: float
+) -> None:
+    # the track phase fades its dither out before the seeker's reference is taken from it
+    # (test_seekers: the session ends on the optimum it stores): at a protocol's seek phase's
+    # end, unless the training after it goes on following the optimum (its dither learning)
+    phases = [{"kind": "seek", "duration": 40.0, "until_converged": False}, after]
+    loop = Loop(session({"name": "seek", "phases": phases}))
+    loop.begin(0.0, 0.0)
+    assert loop.seeker.ends_at == ends_at
+    r = run_simulation(session({"name": "seek", "phases": phases}))
+    c = columns(r)
+    seek = next(s for s in phase_spans(r.stages, float(c["t"][-1])) if s.kind == "seek")
+    at_end = np.searchsorted(c["t"], seek.end) - 1
+    found = next(st.optimum for st in r.stages if st.phase == 1)  # as the next phase began
+    assert found is not None
+    if math.isinf(ends_at):  # the dither still on where training takes over
+        window = (c["t"] >= seek.end - 3.0) & (c["t"] < seek.end)
+        assert np.ptp(c["gamma"][window]) > 0.01 * found
+    else:
+        assert c["wd"][at_end] == pytest.approx(found, rel=0.005)
+
+
 def test_the_reference_never_jumps_between_phases(full: SimulationResult) -> None:
     # the hand-over from the seeker's reference to the runner's keeps wd, ad continuous
     wd, ad = full.column("wd"), full.column("ad")
