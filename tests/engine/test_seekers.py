@@ -786,3 +786,34 @@ def test_a_curvature_the_search_barely_saw_does_not_hold_theta_off_the_top() -> 
     assert len(late) > 20
     assert float(late.mean()) / w_star - 1.0 <= 0.10
     assert r.user.power_ratio(np.array([sm.optimum_w]), np.array([120.0]))[0] >= 0.99
+
+
+def test_a_theta_resting_just_inside_a_bound_says_so() -> None:
+    # #23 of the benchmark's seed 20: a skewed person (steep below w*) whose w* drifts from
+    # 2.11 to 1.79 rad/s, far above the trainer's γ3 = 1.3. θ rested 1 % below γ3 for the
+    # last 40 s with the slope at γ3 outward at 4 standard errors, and `at_bound` stayed
+    # null: the tracker asked for θ exactly on the bound. The search's own verdict takes the
+    # bound within `edge`'s tolerance; so does the tracker's now.
+    from sessions.simulation import run_simulation
+
+    w_star = 2.109
+    w = np.linspace(0.15, 3.2, 60) * w_star
+    x = np.log(w / w_star)
+    p = np.exp(-((x / np.where(x < 0.0, 0.3, 0.7)) ** 2) / 2.0)
+    tau = 12.0 * (p / w) / (p / w).max()
+    points = [[0.0, float(tau[0])]] + [[float(a), float(b)] for a, b in zip(w, tau, strict=True)]
+    user = {"kind": "table", "points": points, "noise": 0.048, "ripple": 0.175}
+    user |= {"velocity_fatigue_tau": 67.7, "velocity_fatigue_floor": 0.816, "fatigue_tau": 1397.0}
+    cfg = parse_session_config(
+        {
+            "duration": 120.0,
+            "seed": 1078039919,
+            "machine": {"max_velocity": 15.0},
+            "user": user,
+            "seeker": {"kind": "sweep", "bracket": [0.52, 0.62, 1.3]},
+        }
+    )
+    r = run_simulation(cfg)
+    assert r.user.w_star(t=120.0) == pytest.approx(1.787, abs=0.001)  # outside all along
+    assert r.summary is not None and r.summary.at_bound == "upper"
+    assert r.summary.optimum_w is not None and r.summary.optimum_w >= 1.3 - 0.05
