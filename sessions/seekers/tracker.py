@@ -70,7 +70,8 @@ the optimal cadence of cycling rises with effort). Once a numerical seeker has c
   over the half-period before the last one, and wd settles on θ, the optimum stored: four
   benchmark people ended at 0.987-0.989 of p* on the dither's extreme, on the side θ erred
   to, while θ was above 0.99;
-- at a bound, with the slope pointing outward beyond two standard errors: ``at_bound`` (or
+- at a bound (within the search's tolerance of it), with the slope there pointing outward
+  beyond two standard errors: ``at_bound`` (or
   one expansion step with ``expand``). When θ leaves the bound again the optimum has come
   inside: the search's result is then recorded as converged there.
 
