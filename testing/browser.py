@@ -133,6 +133,13 @@ def login(
     found.wait_for(timeout=timeout * 1e3)
 
 
+def open_tab(page: Page, name: str, timeout_ms: int = 2 * UI_TIMEOUT) -> None:
+    """Click the dashboard's tab ``name``, waiting as long as :func:`login` does: just after
+    the login the page may still be building its panels from the first messages, and in the
+    parallel rooms of a clean clone's CI a click there waited past 30 s."""
+    page.get_by_role("tab", name=name, exact=True).click(timeout=timeout_ms)
+
+
 def text_field(page: Page, label: str) -> Locator:
     """A viser text input by its label. (viser 1.1.1 labels text inputs with ``for`` = the
     handle's uuid but gives the input Mantine's own id, so ``get_by_label`` misses them;

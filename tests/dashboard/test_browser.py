@@ -42,6 +42,7 @@ from testing.browser import (
     cookie_of,
     element_shot,
     login,
+    open_tab,
     pick,
     set_number,
     set_text,
@@ -102,7 +103,7 @@ def test_log_in_and_add_a_user(server: DemoServer, trainer: Afternoon) -> None:
     for name in EXPECT_BUTTONS:
         assert page.get_by_role("button", name=name, exact=True).count() == 1
 
-    page.get_by_role("tab", name="Users", exact=True).click()
+    open_tab(page, "Users")
     set_text(page, "Name", "Hill test person")
     set_text(page, "Limb", "right arm")
     pick(page, "Torque law", "hill")
@@ -124,7 +125,7 @@ def test_a_session_moves_the_charts_and_finds_the_optimum(
     server: DemoServer, trainer: Afternoon, tmp_path: Path
 ) -> None:
     page = trainer.page
-    page.get_by_role("tab", name="Live", exact=True).click()
+    open_tab(page, "Live")
     pick(page, "User", trainer.label)
     wait_text(page, r"Stored optimum for Hill test person: none yet")
     set_number(page, "Duration (s)", FIRST_SESSION_S)
@@ -205,7 +206,7 @@ def test_history_shows_the_sessions_their_charts_and_csv(
     server: DemoServer, trainer: Afternoon
 ) -> None:
     page, first = trainer.page, trainer.first
-    page.get_by_role("tab", name="History", exact=True).click()
+    open_tab(page, "History")
     pick(page, "History of", trainer.label)
     wait_text(page, rf"Hill test person · 2 sessions · current optimum {trainer.found_rpm} rpm")
     options = f"#{first} · "
@@ -305,7 +306,7 @@ def test_each_trainer_has_their_own_session_setup(
     server: DemoServer, browser: Any, trainer: Afternoon
 ) -> None:
     page = trainer.page
-    page.get_by_role("tab", name="Live", exact=True).click()
+    open_tab(page, "Live")
     mine = page.get_by_label("Duration (s)", exact=True)
     before = mine.input_value()
     other_ctx = browser.new_context(viewport=VIEWPORT)
@@ -331,7 +332,7 @@ def test_each_viewer_has_their_own_history_pick(server: DemoServer, browser: Any
         ctx = browser.new_context(viewport=VIEWPORT)
         page = ctx.new_page()
         login(page, server.url, login_name, VIEWER_PASSWORD)
-        page.get_by_role("tab", name="History", exact=True).click()
+        open_tab(page, "History")
         pages.append((ctx, page))
     (_, a), (_, b) = pages
     picked_b = b.get_by_role("combobox", name="History of", exact=True).input_value()
@@ -362,7 +363,7 @@ def test_logging_out_closes_the_page_and_its_socket(server: DemoServer, trainer:
     page = trainer.page
     own = {"Cookie": f"ergoseek_session={cookie_of(trainer.context)}", "Origin": server.url}
     ws_url = server.ws_url + "/dashboard"
-    page.get_by_role("tab", name="Live", exact=True).click()
+    open_tab(page, "Live")
     page.get_by_role("button", name="Log out").click()
     page.wait_for_url(re.compile(re.escape(server.url) + r"/(\?logout=1)?$"))
     page.get_by_text("Logged out.").wait_for()

@@ -38,7 +38,7 @@ import numpy as np
 import pytest
 
 from sessions.store import open_store
-from testing.browser import TRAINER, VIEWPORT, DemoServer, login, pick, set_number
+from testing.browser import TRAINER, VIEWPORT, DemoServer, login, open_tab, pick, set_number
 from testing.browser import wait_text as wait_for_text
 
 RPM = 60.0 / (2.0 * math.pi)  # independent of sessions.units
@@ -144,7 +144,7 @@ def test_a_protocol_from_the_dashboard_in_rpm_then_rad_s(
     assert np.abs(c["w"][last]).max() < 0.05 and np.abs(c["u"][last]).max() < 0.05
 
     # -- History: progress with W/kg; the report and the activity through the login ---
-    page.get_by_role("tab", name="History", exact=True).click()
+    open_tab(page, "History")
     pick(page, "History of", label)
     wait_text(page, rf"1 ended session · W/kg with {MASS:g} kg")
     page.get_by_role("combobox", name="Session", exact=True).click()

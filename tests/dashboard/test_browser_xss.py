@@ -26,6 +26,7 @@ from testing.browser import (
     DemoServer,
     csp_violations,
     login,
+    open_tab,
     pick,
     text_field,
     wait_text,
@@ -144,7 +145,7 @@ def test_a_running_sessions_status_line_shows_the_name_as_text(
 
 
 def test_names_show_as_text_in_history(server: DemoServer, page: Any, users: dict) -> None:
-    page.get_by_role("tab", name="History", exact=True).click()
+    open_tab(page, "History")
     for name, label in users.items():
         pick(page, "History of", label)
         sessions = "1 session" if name == PAYLOADS[0] else "0 sessions"
@@ -153,7 +154,7 @@ def test_names_show_as_text_in_history(server: DemoServer, page: Any, users: dic
 
 
 def test_names_show_as_text_in_the_users_tab(server: DemoServer, page: Any, users: dict) -> None:
-    page.get_by_role("tab", name="Users", exact=True).click()
+    open_tab(page, "Users")
     for name, label in users.items():
         pick(page, "Profile", label)
         field = text_field(page, "Name")
@@ -164,7 +165,7 @@ def test_names_show_as_text_in_the_users_tab(server: DemoServer, page: Any, user
         page.get_by_role("button", name="Save user").click()
         literal(page, "Saved user ", name, f" ({label.rsplit(' (', 1)[1]}")
     assert_nothing_ran(server, page)
-    page.get_by_role("tab", name="Live", exact=True).click()
+    open_tab(page, "Live")
 
 
 def test_the_page_runs_no_inline_script_it_did_not_ship(page: Any) -> None:
