@@ -195,7 +195,9 @@ class Tracker:
         seek's end (the session ends on θ: the module's docstring)."""
         x = t - self.t0
         a = self.amplitude() * smoothstep(x / self.period)
-        a *= smoothstep(2.0 * (self.owner.ends_at - t) / self.period - 1.0)
+        left = self.owner.ends_at - t
+        if left < self.period:  # the fade: 1 before it, so not computed every period
+            a *= smoothstep(2.0 * left / self.period - 1.0)
         side = math.copysign(1.0, math.sin(self.omega * x))
         return self.owner.clamp(self.theta + SQUARE * a * side)
 

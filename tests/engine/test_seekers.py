@@ -753,6 +753,23 @@ def test_the_searchs_curvature_is_kept_as_well_as_it_was_known() -> None:
         assert min(c, g) <= s <= max(c, g)
 
 
+def _skewed_points(
+    w_star: float, *, peak_power: float | None = None, peak_torque: float | None = None
+) -> list[list[float]]:
+    """The benchmark's skewed table (`_table` in benchmarks/convergence.py, which tests do
+    not import): power steep below w* (s = 0.3 on a log axis) and flat above (s = 0.7),
+    60 points from 0.15 w* to 3.2 w* and one at rest; scaled to a peak power or torque."""
+    w = np.linspace(0.15, 3.2, 60) * w_star
+    x = np.log(w / w_star)
+    p = np.exp(-((x / np.where(x < 0.0, 0.3, 0.7)) ** 2) / 2.0)
+    if peak_power is not None:
+        tau = (peak_power * p) / w
+    else:
+        assert peak_torque is not None
+        tau = peak_torque * (p / w) / (p / w).max()
+    return [[0.0, float(tau[0])]] + [[float(a), float(b)] for a, b in zip(w, tau, strict=True)]
+
+
 def test_a_curvature_the_search_barely_saw_does_not_hold_theta_off_the_top() -> None:
     # A skewed top, steep below w* (s = 0.3 on a log axis) and flat above (s = 0.7): its 99 %
     # band −4 %/+10 % (#67 of the benchmark's seed 21, its curve, noise and seed, steady).
@@ -764,12 +781,7 @@ def test_a_curvature_the_search_barely_saw_does_not_hold_theta_off_the_top() -> 
     # and θ comes down.
     from sessions.simulation import run_simulation
 
-    w = np.linspace(0.15, 3.2, 60) * 5.5
-    x = np.log(w / 5.5)
-    p = 14.5 * np.exp(-((x / np.where(x < 0.0, 0.3, 0.7)) ** 2) / 2.0)
-    points = [[0.0, float(p[0] / w[0])]] + [
-        [float(a), float(b / a)] for a, b in zip(w, p, strict=True)
-    ]
+    points = _skewed_points(5.5, peak_power=14.5)
     cfg = parse_session_config(
         {
             "duration": 120.0,
@@ -796,12 +808,7 @@ def test_a_theta_resting_just_inside_a_bound_says_so() -> None:
     # bound within `edge`'s tolerance; so does the tracker's now.
     from sessions.simulation import run_simulation
 
-    w_star = 2.109
-    w = np.linspace(0.15, 3.2, 60) * w_star
-    x = np.log(w / w_star)
-    p = np.exp(-((x / np.where(x < 0.0, 0.3, 0.7)) ** 2) / 2.0)
-    tau = 12.0 * (p / w) / (p / w).max()
-    points = [[0.0, float(tau[0])]] + [[float(a), float(b)] for a, b in zip(w, tau, strict=True)]
+    points = _skewed_points(2.109, peak_torque=12.0)
     user = {"kind": "table", "points": points, "noise": 0.048, "ripple": 0.175}
     user |= {"velocity_fatigue_tau": 67.7, "velocity_fatigue_floor": 0.816, "fatigue_tau": 1397.0}
     cfg = parse_session_config(
