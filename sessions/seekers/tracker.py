@@ -196,7 +196,7 @@ class Tracker:
         x = t - self.t0
         a = self.amplitude() * smoothstep(x / self.period)
         left = self.owner.ends_at - t
-        if left < self.period:  # the fade: 1 before it, so not computed every period
+        if left < self.period:  # the fade; 1 before it, so skipped on most loop periods
             a *= smoothstep(2.0 * left / self.period - 1.0)
         side = math.copysign(1.0, math.sin(self.omega * x))
         return self.owner.clamp(self.theta + SQUARE * a * side)
@@ -347,15 +347,16 @@ class Tracker:
         it: θ can rest 1 % inside while the slope at the bound points outward at 4 standard
         errors (#23 of the benchmark's seed 20, its w* 37 % above γ3)."""
         owner = self.owner
-        side = None
-        for bound, name, sign in ((owner.hi, "upper", 1.0), (owner.lo, "lower", -1.0)):
-            if owner.edge(new) == name:
-                slope, slope_se = f.slope(bound)
-                if sign * slope > 2.0 * slope_se:
-                    side = name
+        side = owner.edge(new)
+        if side is not None:
+            bound, sign = (owner.hi, 1.0) if side == "upper" else (owner.lo, -1.0)
+            slope, slope_se = f.slope(bound)
+            if not sign * slope > 2.0 * slope_se:
+                side = None
         if side is not None and owner.expand(side):
             side = None
         was = owner.at_bound
         owner.at_bound = side
+        # asked again: an expansion has just moved the bound away from θ
         if was is not None and side is None and owner.edge(new) is None:
             owner.converged_at(t, new, f.value(new))  # the optimum came inside
